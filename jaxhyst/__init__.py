@@ -1,0 +1,52 @@
+"""jaxhyst: differentiable Jiles–Atherton hysteresis of magnetostrictive actuators in JAX.
+
+Importing the package turns on float64 and JAX's persistent compilation cache
+(see `jaxhyst._config`).
+"""
+
+from . import _config  # noqa: F401  (x64 + compilation cache, before anything traces)
+from .actuator import ACTUATOR1, ACTUATOR2, Actuator
+from .drive import Drive, sinusoidal_current, sinusoidal_field
+from .model import (
+    ClassicJA,
+    EnergyBasedJA,
+    JAVariant,
+    Simulation,
+    frequency_response,
+    langevin,
+    langevin_slope,
+    magnetostriction,
+    simulate,
+    simulate_unchecked,
+)
+from .model.simulate import simulate_batch
+from .params import NAMES, TABLE1_BOUNDS, TABLE1_TRUE, TABLE3, UNITS, Bounds, Parameters
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ACTUATOR1",
+    "ACTUATOR2",
+    "NAMES",
+    "TABLE1_BOUNDS",
+    "TABLE1_TRUE",
+    "TABLE3",
+    "UNITS",
+    "Actuator",
+    "Bounds",
+    "ClassicJA",
+    "Drive",
+    "EnergyBasedJA",
+    "JAVariant",
+    "Parameters",
+    "Simulation",
+    "frequency_response",
+    "langevin",
+    "langevin_slope",
+    "magnetostriction",
+    "simulate",
+    "simulate_batch",
+    "simulate_unchecked",
+    "sinusoidal_current",
+    "sinusoidal_field",
+]

@@ -1,0 +1,235 @@
+"""Model parameters θ of the paper's eq 14, their box bounds, and the paper's presets.
+
+Parameters are an ``equinox.Module`` with one named field per physical quantity, so a
+batch of parameter sets is the same Module with array leaves of shape ``(P,)`` and
+``jax.vmap`` over it is natural.
+
+| field    | symbol | unit  | meaning                                                        |
+|----------|--------|-------|----------------------------------------------------------------|
+| Ms       | Ms     | A/m   | saturation magnetization                                       |
+| lambda_s | λs     | 1     | saturation magnetostriction                                    |
+| a        | a      | A/m   | anhysteretic shape parameter (Langevin width)                  |
+| k        | k      | A/m   | pinning (irreversible loss) parameter                          |
+| alpha    | α̃      | 1     | effective interdomain + stress coupling (negative in compression)|
+| c        | c      | 1     | reversibility coefficient, 0 ≤ c ≤ 1                           |
+| E        | E      | N/m²  | Young's modulus of the rod                                     |
+| Kz       | Kz     | N/m   | effective stiffness of rod + load                              |
+| Mz       | Mz     | kg    | effective moving mass                                          |
+| Cz       | Cz     | N·s/m | effective damping                                              |
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+NAMES: tuple[str, ...] = ("Ms", "lambda_s", "a", "k", "alpha", "c", "E", "Kz", "Mz", "Cz")
+UNITS: dict[str, str] = {
+    "Ms": "A/m",
+    "lambda_s": "1",
+    "a": "A/m",
+    "k": "A/m",
+    "alpha": "1",
+    "c": "1",
+    "E": "N/m^2",
+    "Kz": "N/m",
+    "Mz": "kg",
+    "Cz": "N*s/m",
+}
+
+
+class Parameters(eqx.Module):
+    """The ten unknowns θ = [Ms, λs, a, k, α̃, c, E, Kz, Mz, Cz] (SI units, see module doc).
+
+    Leaves may be scalars (one parameter set) or arrays with a leading batch axis.
+    """
+
+    Ms: jax.Array
+    lambda_s: jax.Array
+    a: jax.Array
+    k: jax.Array
+    alpha: jax.Array
+    c: jax.Array
+    E: jax.Array
+    Kz: jax.Array
+    Mz: jax.Array
+    Cz: jax.Array
+
+    names: ClassVar[tuple[str, ...]] = NAMES
+
+    def __init__(self, Ms, lambda_s, a, k, alpha, c, E, Kz, Mz, Cz):
+        self.Ms = jnp.asarray(Ms, dtype=jnp.float64)
+        self.lambda_s = jnp.asarray(lambda_s, dtype=jnp.float64)
+        self.a = jnp.asarray(a, dtype=jnp.float64)
+        self.k = jnp.asarray(k, dtype=jnp.float64)
+        self.alpha = jnp.asarray(alpha, dtype=jnp.float64)
+        self.c = jnp.asarray(c, dtype=jnp.float64)
+        self.E = jnp.asarray(E, dtype=jnp.float64)
+        self.Kz = jnp.asarray(Kz, dtype=jnp.float64)
+        self.Mz = jnp.asarray(Mz, dtype=jnp.float64)
+        self.Cz = jnp.asarray(Cz, dtype=jnp.float64)
+
+    # -- conversions --------------------------------------------------------------
+    def to_array(self) -> jax.Array:
+        """Stack the fields along a new last axis, in the order of `NAMES`: shape (..., 10)."""
+        return jnp.stack([getattr(self, n) for n in NAMES], axis=-1)
+
+    @classmethod
+    def from_array(cls, x) -> Parameters:
+        """Inverse of `to_array`: ``x`` has shape (..., 10) in the order of `NAMES`."""
+        x = jnp.asarray(x, dtype=jnp.float64)
+        if x.shape[-1:] != (len(NAMES),):
+            raise ValueError(
+                f"Parameters.from_array needs a last axis of length {len(NAMES)} "
+                f"(ordered {', '.join(NAMES)}); got shape {x.shape}."
+            )
+        return cls(*[x[..., i] for i in range(len(NAMES))])
+
+    def to_dict(self) -> dict[str, float]:
+        """Plain ``{name: float}`` of a single (unbatched) parameter set."""
+        return {n: float(getattr(self, n)) for n in NAMES}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Parameters:
+        missing = [n for n in NAMES if n not in d]
+        unknown = [n for n in d if n not in NAMES]
+        if missing or unknown:
+            raise ValueError(
+                f"Parameters need exactly the keys {list(NAMES)}; missing {missing}, "
+                f"unknown {unknown}."
+            )
+        return cls(**{n: d[n] for n in NAMES})
+
+    def replace(self, **changes) -> Parameters:
+        """A copy with some fields changed, e.g. ``p.replace(Mz=0.6)``."""
+        unknown = [n for n in changes if n not in NAMES]
+        if unknown:
+            raise ValueError(f"Unknown parameter name(s) {unknown}; valid names: {list(NAMES)}.")
+        d = {n: getattr(self, n) for n in NAMES}
+        d.update(changes)
+        return Parameters(**d)
+
+    def __str__(self) -> str:  # pragma: no cover - cosmetic
+        if jnp.ndim(self.Ms) != 0:
+            return f"Parameters(batch of {jnp.shape(self.Ms)})"
+        rows = [f"  {n:<9}= {float(getattr(self, n)):.6g} {UNITS[n]}" for n in NAMES]
+        return "Parameters(\n" + "\n".join(rows) + "\n)"
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def check_parameters(p: Parameters) -> None:
+    """Raise ``ValueError`` naming the parameter if ``p`` is physically invalid.
+
+    Checks (all values, batched or not): every value finite; Ms, a, k, Mz, Kz > 0;
+    λs, E ≥ 0; Cz ≥ 0; 0 ≤ c ≤ 1. Traced values (inside jit/vmap) cannot be inspected
+    and are skipped; the public `simulate` checks before tracing.
+    """
+    rules = {
+        "Ms": (lambda v: v > 0, "must be > 0 (saturation magnetization, A/m)"),
+        "a": (lambda v: v > 0, "must be > 0 (Langevin width, A/m)"),
+        "k": (lambda v: v > 0, "must be > 0 (pinning parameter, A/m)"),
+        "c": (lambda v: (v >= 0) & (v <= 1), "must lie in [0, 1] (reversibility)"),
+        "lambda_s": (lambda v: v >= 0, "must be >= 0 (saturation magnetostriction)"),
+        "E": (lambda v: v >= 0, "must be >= 0 (Young's modulus, N/m^2)"),
+        "Kz": (lambda v: v > 0, "must be > 0 (stiffness, N/m)"),
+        "Mz": (lambda v: v > 0, "must be > 0 (moving mass, kg)"),
+        "Cz": (lambda v: v >= 0, "must be >= 0 (damping, N*s/m)"),
+    }
+    for name in NAMES:
+        value = getattr(p, name)
+        if not _is_concrete(value):
+            continue
+        v = np.asarray(value)
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"Parameter {name} is not finite ({v!r}); give a finite value.")
+        if name in rules:
+            ok, msg = rules[name]
+            bad = ~ok(v)
+            if np.any(bad):
+                shown = v[bad].ravel()[:3] if v.ndim else v
+                raise ValueError(f"Parameter {name} = {shown} {msg}.")
+
+
+class Bounds(eqx.Module):
+    """Box bounds d_r ≤ θ_r ≤ b_r (paper eq 15), as two `Parameters`."""
+
+    lower: Parameters
+    upper: Parameters
+
+    def __check_init__(self):
+        lo, hi = np.asarray(self.lower.to_array()), np.asarray(self.upper.to_array())
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            raise ValueError("Bounds must be finite for every parameter.")
+        bad = [n for n, l_, h_ in zip(NAMES, lo, hi, strict=True) if not l_ <= h_]
+        if bad:
+            raise ValueError(f"Bounds have lower > upper for {bad}; swap or fix them.")
+
+    @classmethod
+    def from_dict(cls, d: dict[str, tuple[float, float]]) -> Bounds:
+        """``{name: (lower, upper)}`` for all ten parameters."""
+        lo = Parameters.from_dict({n: d[n][0] for n in d})
+        hi = Parameters.from_dict({n: d[n][1] for n in d})
+        return cls(lo, hi)
+
+    def width(self) -> jax.Array:
+        return self.upper.to_array() - self.lower.to_array()
+
+    def contains(self, p: Parameters) -> bool:
+        x = np.asarray(p.to_array())
+        return bool(
+            np.all(x >= np.asarray(self.lower.to_array()))
+            and np.all(x <= np.asarray(self.upper.to_array()))
+        )
+
+
+# -- the paper's numbers ---------------------------------------------------------------
+
+#: Table 1 "true" values of the simulation study (α̃ negative, see SPEC §3).
+TABLE1_TRUE = Parameters(
+    Ms=7.65e5, lambda_s=1.005e-3, a=7012.0, k=3283.0, alpha=-0.01, c=0.18,
+    E=3.0e10, Kz=3.36e7, Mz=0.55, Cz=4300.0,
+)  # fmt: skip
+
+#: Table 1 search ranges.
+TABLE1_BOUNDS = Bounds.from_dict(
+    {
+        "Ms": (7.4e5, 8.0e5),
+        "lambda_s": (1.0e-3, 1.2e-3),
+        "a": (3506.0, 10518.0),
+        "k": (1642.0, 4925.0),
+        "alpha": (-0.1, 0.0),
+        "c": (0.0, 0.3),
+        "E": (2.5e10, 3.5e10),
+        "Kz": (3.0e7, 4.0e7),
+        "Mz": (0.46, 0.62),
+        "Cz": (3650.0, 4950.0),
+    }
+)
+
+
+def _table3(Ms, lambda_s, a, k, alpha, c, Mz, Cz, E=2.22e10, Kz=2.6454e7):
+    return Parameters(Ms, lambda_s, a, k, alpha, c, E, Kz, Mz, Cz)
+
+
+#: Paper Table 3 (Actuator2), keyed by drive frequency in Hz. α̃ signs are lost in the
+#: extracted text; negative is used (Calkins et al.). At 10 Hz the paper gives no Mz, Cz
+#: (not identifiable quasi-statically); the 800 Hz values are used there.
+TABLE3: dict[int, Parameters] = {
+    10: _table3(7.65e5, 1.005e-3, 7012.0, 3283.0, -0.010, 0.180, 0.5443, 2011.1, E=2.220e10,
+                Kz=2.6454e7),
+    800: _table3(7.61e5, 1.067e-3, 7156.8, 7495.7, -0.0001, 0.172, 0.5443, 2011.1,
+                 E=2.221e10, Kz=2.6455e7),
+    1000: _table3(7.66e5, 1.500e-3, 8975.6, 4799.6, -0.013, 0.038, 0.5439, 2009.9,
+                  E=2.220e10, Kz=2.6454e7),
+    1250: _table3(7.67e5, 1.892e-3, 3458.2, 10217.0, -0.0001, 0.0003, 0.5445, 2010.0,
+                  E=2.219e10, Kz=2.644e7),
+    2000: _table3(7.68e5, 2.002e-3, 6771.2, 15740.0, -0.058, 0.1989, 0.5441, 2010.0,
+                  E=2.222e10, Kz=2.647e7),
+}
