@@ -50,3 +50,21 @@ __all__ = [
     "sinusoidal_current",
     "sinusoidal_field",
 ]
+
+from .identify import (  # noqa: E402
+    IdentificationResult,
+    ParameterSpace,
+    Problem,
+    multistart,
+    solve,
+    synthetic_problem,
+)
+
+__all__ += [
+    "IdentificationResult",
+    "ParameterSpace",
+    "Problem",
+    "multistart",
+    "solve",
+    "synthetic_problem",
+]

@@ -110,3 +110,25 @@ def cases():
         ("minor_loop", jh.TABLE3[10], a2, minor_loop_drive()),
         ("reversing", jh.TABLE1_TRUE, jh.ACTUATOR1, reversing_drive()),
     ]
+
+
+def table1_problem(spp=100, **kwargs):
+    """The paper's simulation study (Table 1 truth and ranges, Actuator1, 100 Hz current),
+    sampled coarser than the paper study so that tests run quickly; noise-free."""
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=spp)
+    return jh.synthetic_problem(jh.TABLE1_TRUE, drive, jh.ACTUATOR1, jh.TABLE1_BOUNDS, **kwargs)
+
+
+def identifiable_combinations(p: dict) -> dict:
+    """The seven combinations that displacement data determine (docs/theory.md):
+    α·Ms, a, k, c, λs·E/Kz, Mz/Kz, Cz/Kz."""
+    return {
+        "alpha*Ms": p["alpha"] * p["Ms"], "a": p["a"], "k": p["k"], "c": p["c"],
+        "lambda_s*E/Kz": p["lambda_s"] * p["E"] / p["Kz"], "Mz/Kz": p["Mz"] / p["Kz"],
+        "Cz/Kz": p["Cz"] / p["Kz"],
+    }
+
+
+def max_combination_error(p: dict, truth: dict) -> float:
+    a, b = identifiable_combinations(p), identifiable_combinations(truth)
+    return max(abs(a[k] / b[k] - 1) for k in a)

@@ -110,12 +110,11 @@ def _interval_step(variant, p, force_gain, substeps):
         def f(H, M):
             return variant.slope(H, M, delta, p)
 
-        H = H0
-        k1 = f(H, M)
-        for _ in range(substeps):  # static, unrolled
+        def substep(state, _):
+            H, M, k1, x = state
             M_next = _substep_magnetization(variant, p, delta, H, M, dH, k1)
-            H = H + dH
-            k_end = f(H, M_next)
+            H_next = H + dH
+            k_end = f(H_next, M_next)
             lam0 = magnetostriction(M, p.Ms, p.lambda_s)
             lam1 = magnetostriction(M_next, p.Ms, p.lambda_s)
             dlam0 = magnetostriction_rate(M, k1 * dH_dt, p.Ms, p.lambda_s)
@@ -123,7 +122,11 @@ def _interval_step(variant, p, force_gain, substeps):
             w = force_gain * hermite_taylor_coefficients(lam0, dlam0, lam1, dlam1, h)
             # explicit 2×2 / 2×4 products: XLA:CPU calls a BLAS kernel per tiny dot
             x = (Phi * x).sum(-1) + (G * w).sum(-1)
-            M, k1 = M_next, k_end
+            return (H_next, M_next, k_end, x), None
+
+        # An inner scan rather than a Python loop keeps the traced program (and so the
+        # compile time of solvers that differentiate through it) independent of substeps.
+        (_, M, _, x), _ = jax.lax.scan(substep, (H0, M, f(H0, M), x), None, length=substeps)
         return (M, x), (M, x[0], x[1])
 
     return step

@@ -1,0 +1,29 @@
+"""Identification: problems, local solvers (Optimistix + the paper's LMA/TRA), results."""
+
+from .local import SOLVERS, make_solver, multistart, solve
+from .paper_solvers import (
+    MultiplicativeDamping,
+    PaperLMA,
+    PaperTRA,
+    TwoDimensionalSubspaceDescent,
+)
+from .problem import OUTPUTS, ParameterSpace, Problem, synthetic_problem, u_from_z, z_from_u
+from .result import IdentificationResult
+
+__all__ = [
+    "OUTPUTS",
+    "SOLVERS",
+    "IdentificationResult",
+    "MultiplicativeDamping",
+    "PaperLMA",
+    "PaperTRA",
+    "ParameterSpace",
+    "Problem",
+    "TwoDimensionalSubspaceDescent",
+    "make_solver",
+    "multistart",
+    "solve",
+    "synthetic_problem",
+    "u_from_z",
+    "z_from_u",
+]

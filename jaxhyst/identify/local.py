@@ -1,0 +1,145 @@
+"""Local least-squares solvers on a `Problem`, single or vmapped multi-start.
+
+Every solver runs in the unconstrained coordinates z of the problem (bounds by
+construction, see `problem`), with Jacobians from ``jax.jacfwd`` (Optimistix's
+``options={"jac": "fwd"}``), never finite differences.
+
+| name          | what                                                          |
+|---------------|---------------------------------------------------------------|
+| ``lm``        | ``optx.LevenbergMarquardt`` (QR)                              |
+| ``indirect_lm`` | ``optx.IndirectLevenbergMarquardt``                         |
+| ``dogleg``    | ``optx.Dogleg`` with an SVD linear solve (JᵀJ can be singular) |
+| ``lma``       | the paper's LMA (`PaperLMA`)                                  |
+| ``tra``       | the paper's 2-D subspace trust region (`PaperTRA`)            |
+"""
+
+from __future__ import annotations
+
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+
+from .paper_solvers import PaperLMA, PaperTRA
+from .problem import Problem, z_from_u
+from .result import IdentificationResult
+
+SOLVERS = ("lm", "indirect_lm", "dogleg", "lma", "tra")
+
+
+def make_solver(name: str, rtol: float = 1e-10, atol: float = 1e-12):
+    """An Optimistix least-squares solver by name (see module table). ``rtol``/``atol``
+    are Optimistix's Cauchy termination tolerances on z and the cost."""
+    if name == "lm":
+        return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    if name == "indirect_lm":
+        return optx.IndirectLevenbergMarquardt(rtol=rtol, atol=atol)
+    if name == "dogleg":
+        return optx.Dogleg(rtol=rtol, atol=atol, linear_solver=lx.SVD())
+    if name == "lma":
+        return PaperLMA(rtol=rtol, atol=atol)
+    if name == "tra":
+        return PaperTRA(rtol=rtol, atol=atol)
+    raise ValueError(f"Unknown solver {name!r}; choose one of {list(SOLVERS)}.")
+
+
+def _run(problem: Problem, solver, z0, max_steps: int):
+    """One solve; returns only arrays (value, result, steps, cost) so that it vmaps
+    (Optimistix issue #63: a whole Solution does not)."""
+    sol = optx.least_squares(
+        problem.residuals, solver, z0, max_steps=max_steps, throw=False,
+        options={"jac": "fwd"},
+    )  # fmt: skip
+    z = sol.value
+    cost = jnp.sum(problem.residuals(z) ** 2)
+    return z, sol.result._value, sol.stats["num_steps"], cost
+
+
+_run_jit = eqx.filter_jit(_run)
+
+
+@eqx.filter_jit
+def _run_many(problem, solver, z0s, max_steps):
+    return jax.vmap(lambda z0: _run(problem, solver, z0, max_steps))(z0s)
+
+
+_RESULT_NAMES = {
+    int(item._value): name for name, item in optx.RESULTS._name_to_item.items()
+}
+
+
+def _result_name(code) -> str:
+    """Optimistix's RESULTS name (e.g. ``successful``, ``max_steps_reached``)."""
+    return _RESULT_NAMES.get(int(code), f"code {int(code)}")
+
+
+def _start_z(problem: Problem, start) -> jax.Array:
+    """z0 from a `Parameters` (projected into the box) or u ∈ [0, 1]ⁿ array."""
+    if hasattr(start, "to_array"):
+        return problem.space.z_from_params(start)
+    u = jnp.asarray(start, dtype=jnp.float64)
+    if u.shape[-1] != problem.space.n_free:
+        raise ValueError(
+            f"A start in box coordinates needs {problem.space.n_free} entries (free "
+            f"parameters {problem.space.names}); got shape {u.shape}."
+        )
+    if not bool(jnp.all((u >= 0) & (u <= 1))):
+        raise ValueError("Box coordinates u of a start must lie in [0, 1].")
+    return z_from_u(u)
+
+
+def summarize(problem: Problem, z, steps, code, solver_name: str, wall: float,
+              extra: dict | None = None) -> IdentificationResult:
+    """Build an `IdentificationResult` at the solver coordinate ``z``."""
+    params = problem.space.params_from_z(z)
+    pred = problem.predict(params)
+    e = np.asarray(pred - problem.data)
+    cost = float(np.sum(np.asarray(problem.residuals(z)) ** 2))
+    return IdentificationResult(
+        params=params, free=problem.space.names, cost=cost, objective=float(np.sum(e**2)),
+        rms_error=float(np.sqrt(np.mean(e**2))), max_abs_error=float(np.max(np.abs(e))),
+        steps=int(steps), result=_result_name(code), solver=solver_name, wall_time=wall,
+        output=problem.output, extra=extra or {},
+    )  # fmt: skip
+
+
+def solve(problem: Problem, start, solver: str = "lm", max_steps: int = 200,
+          rtol: float = 1e-10, atol: float = 1e-12) -> IdentificationResult:
+    """Run one local solver from ``start`` (`Parameters` or box coordinates u).
+
+    ``max_steps`` bounds the iterations (the paper's T3 for ``lma``/``tra``)."""
+    z0 = _start_z(problem, start)
+    t0 = time.perf_counter()
+    z, code, steps, _ = _run_jit(problem, make_solver(solver, rtol, atol), z0, max_steps)
+    z.block_until_ready()
+    wall = time.perf_counter() - t0
+    return summarize(problem, z, steps, code, solver, wall)
+
+
+def multistart(problem: Problem, starts, solver: str = "lm", max_steps: int = 200,
+               rtol: float = 1e-10, atol: float = 1e-12) -> IdentificationResult:
+    """Solve from K starts in one vmapped batch; returns the best, with the per-start
+    table (final cost, result, steps, parameters) in ``extra["starts"]``.
+
+    ``starts``: box coordinates of shape (K, n_free), or a batched `Parameters`.
+    The batch runs until its slowest member stops, so ``max_steps`` matters."""
+    z0s = _start_z(problem, starts)
+    if z0s.ndim != 2:
+        raise ValueError("multistart needs a batch of starts, shape (K, n_free).")
+    t0 = time.perf_counter()
+    zs, codes, steps, costs = _run_many(problem, make_solver(solver, rtol, atol), z0s, max_steps)
+    costs = np.asarray(costs)
+    wall = time.perf_counter() - t0
+    ranked = np.where(np.isfinite(costs), costs, np.inf)
+    best = int(np.argmin(ranked))
+    table = [
+        {"cost": float(costs[i]), "result": _result_name(codes[i]), "steps": int(steps[i]),
+         "params": problem.space.params_from_z(zs[i]).to_dict()}
+        for i in range(len(costs))
+    ]  # fmt: skip
+    return summarize(problem, zs[best], steps[best], codes[best], f"{solver} x{len(costs)}",
+                     wall, extra={"starts": table, "best_index": best})

@@ -1,0 +1,63 @@
+"""Identification results: named parameters with units, fit quality, solver outcome."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..params import NAMES, UNITS, Parameters
+
+
+@dataclass
+class IdentificationResult:
+    """What an identification returns (all numbers plain Python/NumPy, SI units).
+
+    - ``params``: identified `Parameters` (fixed ones at their given values).
+    - ``free``: names of the parameters that were identified.
+    - ``cost``: normalised cost Σr² (mean squared error over max|data|²).
+    - ``objective``: the paper's E = Σ(y − ỹ)², in the output's unit squared.
+    - ``rms_error``, ``max_abs_error``: residual RMS and max |e|, output's unit.
+    - ``steps``: solver iterations; ``result``: solver outcome (Optimistix RESULTS name).
+    - ``solver``, ``wall_time`` (s), ``output`` (observed quantity), ``extra`` (per-method
+      details, e.g. the multi-start table or a GA history).
+    """
+
+    params: Parameters
+    free: tuple[str, ...]
+    cost: float
+    objective: float
+    rms_error: float
+    max_abs_error: float
+    steps: int
+    result: str
+    solver: str
+    wall_time: float
+    output: str = "displacement"
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def success(self) -> bool:
+        return self.result in ("successful", "max_steps_reached") and np.isfinite(self.cost)
+
+    def to_dict(self) -> dict:
+        return {
+            "params": {n: {"value": float(getattr(self.params, n)), "unit": UNITS[n],
+                           "free": n in self.free} for n in NAMES},
+            "cost": self.cost, "objective": self.objective, "rms_error": self.rms_error,
+            "max_abs_error": self.max_abs_error, "steps": self.steps, "result": self.result,
+            "solver": self.solver, "wall_time_s": self.wall_time, "output": self.output,
+        }  # fmt: skip
+
+    def __str__(self) -> str:
+        lines = [
+            f"Identification by {self.solver}: {self.result} after {self.steps} steps "
+            f"in {self.wall_time:.2f} s",
+            f"  cost {self.cost:.3e} (normalised), E = {self.objective:.3e}, "
+            f"rms |e| = {self.rms_error:.3e}, max |e| = {self.max_abs_error:.3e} "
+            f"({self.output})",
+        ]
+        for n in NAMES:
+            mark = "" if n in self.free else "  (fixed)"
+            lines.append(f"  {n:<9}= {float(getattr(self.params, n)):>13.6g} {UNITS[n]}{mark}")
+        return "\n".join(lines)
