@@ -98,17 +98,12 @@ def bench_jax(P_list, spp_list, sharded):
 
 
 def bench_loops(P_list, spp_list, numpy_individuals=2):
-    import numba
-    from reference_loop import simulate_loop, structural_matrices
+    from reference_loop import numba_module, simulate_loop, structural_matrices
 
     import jaxhyst as jh
 
-    fast = numba.njit(cache=False)(simulate_loop)
-
-    @numba.njit(parallel=True)
-    def fast_population(X, Ar, H, h, substeps, Phis, Gs, Y):
-        for j in numba.prange(X.shape[0]):
-            fast(X[j], Ar, H, h, substeps, Phis[j], Gs[j], Y[j])
+    compiled = numba_module()
+    fast, fast_population = compiled.simulate_loop, compiled.simulate_population
 
     rows = []
     for spp in spp_list:

@@ -10,6 +10,11 @@ import math
 import numpy as np
 from scipy.linalg import expm
 
+# Plain Python by default; `numba_module()` re-executes this file with jit = numba.njit.
+jit = globals().get("jit") or (lambda f: f)
+jit_parallel = globals().get("jit_parallel") or (lambda f: f)
+prange = globals().get("prange") or range
+
 
 def structural_matrices(Kz, Mz, Cz, h):
     """(Φ, G) of the exact cubic-hold discretization, as in jaxhyst.model.structure."""
@@ -23,6 +28,7 @@ def structural_matrices(Kz, Mz, Cz, h):
     return np.ascontiguousarray(E[:2, :2]), np.ascontiguousarray(E[:2, 2:])
 
 
+@jit
 def _slope(H, M, delta, th, pinning):
     Ms, a, k, alpha, c = th[0], th[2], th[3], th[4], th[5]
     x = (H + alpha * M) / a
@@ -45,6 +51,7 @@ def _slope(H, M, delta, th, pinning):
     return (irr + c * dMan) / (1.0 - alpha * c * dMan), delta * D
 
 
+@jit
 def _rk4(H, M, dH, k1, delta, th, pinning):
     k2 = _slope(H + 0.5 * dH, M + 0.5 * dH * k1, delta, th, pinning)[0]
     k3 = _slope(H + 0.5 * dH, M + 0.5 * dH * k2, delta, th, pinning)[0]
@@ -52,8 +59,9 @@ def _rk4(H, M, dH, k1, delta, th, pinning):
     return M + dH / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
 
+@jit
 def simulate_loop(th, Ar, H, h, substeps, Phi, G, y_out):
-    """Fill y_out (len(H)) with the displacement; th = the ten parameters (NAMES order)."""
+    """Fill y_out (len(H)) with the displacement; th = the ten parameters."""
     Ms, lam_s, E, Mz = th[0], th[1], th[6], th[8]
     gain = Ar * E / Mz
     M = 0.0
@@ -94,3 +102,27 @@ def simulate_loop(th, Ar, H, h, substeps, Phi, G, y_out):
             M = Mn
             k1 = ke
         y_out[i + 1] = y
+
+
+@jit_parallel
+def simulate_population(X, Ar, H, h, substeps, Phis, Gs, Y):
+    """simulate_loop for every row of X (P, 10); parallel over individuals under Numba."""
+    for j in prange(X.shape[0]):
+        simulate_loop(X[j], Ar, H, h, substeps, Phis[j], Gs[j], Y[j])
+
+
+def numba_module():
+    """This module compiled by Numba: a fresh namespace executed with jit = numba.njit."""
+    import sys
+    import types
+
+    import numba
+
+    mod = types.ModuleType("reference_loop_numba")
+    mod.__dict__["jit"] = numba.njit
+    mod.__dict__["jit_parallel"] = numba.njit(parallel=True)
+    mod.__dict__["prange"] = numba.prange
+    sys.modules[mod.__name__] = mod  # Numba resolves globals through sys.modules
+    with open(__file__) as fh:
+        exec(compile(fh.read(), __file__, "exec"), mod.__dict__)
+    return mod

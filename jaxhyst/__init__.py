@@ -52,15 +52,19 @@ __all__ = [
 ]
 
 from .identify import (  # noqa: E402
+    GASettings,
     IdentificationResult,
     ParameterSpace,
     Problem,
     multistart,
+    run_hybrid,
     solve,
     synthetic_problem,
 )
 
 __all__ += [
+    "GASettings",
+    "run_hybrid",
     "IdentificationResult",
     "ParameterSpace",
     "Problem",

@@ -1,5 +1,6 @@
 """Identification: problems, local solvers (Optimistix + the paper's LMA/TRA), results."""
 
+from .hybrid import HYBRIDS, GASettings, HybridGA, run_hybrid
 from .local import SOLVERS, make_solver, multistart, solve
 from .paper_solvers import (
     MultiplicativeDamping,
@@ -11,6 +12,9 @@ from .problem import OUTPUTS, ParameterSpace, Problem, synthetic_problem, u_from
 from .result import IdentificationResult
 
 __all__ = [
+    "GASettings",
+    "HYBRIDS",
+    "HybridGA",
     "OUTPUTS",
     "SOLVERS",
     "IdentificationResult",
@@ -21,6 +25,7 @@ __all__ = [
     "Problem",
     "TwoDimensionalSubspaceDescent",
     "make_solver",
+    "run_hybrid",
     "multistart",
     "solve",
     "synthetic_problem",

@@ -209,6 +209,10 @@ class Problem(eqx.Module):
         r = self.predict(self.space.params_from_u(u)) - self.data
         return r / (self.scale * np.sqrt(self.data.shape[0]))
 
+    def cost_u(self, u) -> jax.Array:
+        """Normalised cost Σ r² at box coordinates u (the GA's fitness input)."""
+        return jnp.sum(self.residuals_u(u) ** 2)
+
     def cost(self, z) -> jax.Array:
         """Normalised cost Σ r² (dimensionless; 0 at a perfect fit)."""
         return jnp.sum(self.residuals(z) ** 2)
