@@ -17,9 +17,11 @@ Choices (documented in docs/identification.md):
 - BCGA → FCGA: the q2 fittest of the last BCGA generation are the FCGA's first parents.
 - Inside the FCGA, the local search runs ``local_steps`` Optimistix steps (default 5) from
   the best individual after each evaluation; its result replaces that individual, so it
-  passes on as an elite. Its damping / radius restarts each generation (h1 = 0.01, Δ1 = 1):
-  a restart is cheap and keeps every generation a pure function of the GA state, which is
-  what makes checkpoint/resume exact.
+  passes on as an elite. By default (``carry_over=True``) the LMA damping / TRA radius it
+  ended with is where the next generation's local search starts: with a restart at
+  h1 = 0.01 the LMA spends its few steps re-growing h and GALM1 stalls (measured: cost
+  ~2e-9 after 300 generations, against < 1e-20 with carry-over). The carried value is
+  part of the checkpoint, so resume stays exact.
 - Fitness F = 1/√(c1 + E) (eq 35) with E in SI units; non-finite simulations get F = 0.
 
 The driver is a thin Python loop around jitted pieces (population evaluation in one vmapped
@@ -46,6 +48,7 @@ import numpy as np
 
 from .ga import bcga_offspring, decode, fcga_offspring
 from .local import SOLVERS, _result_name, _run_jit, make_solver, summarize
+from .paper_solvers import with_initial_step_size
 from .problem import Problem, u_from_z, z_from_u
 from .result import IdentificationResult
 
@@ -55,7 +58,9 @@ class GASettings:
     """The paper's GA settings (§4): population sizes q1 (BCGA) and q2 (FCGA), crossover
     and mutation probabilities, bits per parameter, generations T1 (BCGA) and T2 (FCGA),
     local iterations T3 (``after`` placement), non-uniform mutation β, elites, local
-    steps per FCGA generation (``inside`` placement), and c1 of the fitness."""
+    steps per FCGA generation (``inside`` placement), whether the LMA damping / TRA radius
+    carries over from one generation's local search to the next (``carry_over``), and c1
+    of the fitness."""
 
     q1: int = 120
     q2: int = 30
@@ -68,6 +73,7 @@ class GASettings:
     beta: float = 5.0
     elites: int = 2
     local_steps: int = 5
+    carry_over: bool = True
     c1: float = 1e-30
 
     def __post_init__(self):
@@ -174,6 +180,9 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
     n = problem.space.n_free
     fingerprint = _fingerprint(problem, method, s, seed)
     local = make_solver(method.local_solver) if method.local_solver else None
+    # initial damping 1/h1 = 100 (LMA) or radius Δ1 = 1 (TRA); carried over if requested
+    initial_step_size = 100.0 if method.local_solver == "lma" else 1.0
+    local_step_size = initial_step_size
 
     # -- state ------------------------------------------------------------------------------
     if resume and checkpoint is not None and os.path.exists(checkpoint):
@@ -190,6 +199,7 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
         genes = jnp.asarray(arrays["genes"]) if "genes" in arrays else None
         U = jnp.asarray(arrays["U"]) if "U" in arrays else None
         elapsed0 = meta["elapsed"]
+        local_step_size = meta.get("local_step_size", local_step_size)
     else:
         key, k0 = jax.random.split(jax.random.PRNGKey(seed))
         genes = jax.random.bernoulli(k0, 0.5, (s.q1, n, s.bits)).astype(jnp.uint8)
@@ -210,6 +220,7 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
             arrays["last_local_u"] = last_local_u
         meta = dict(fingerprint=fingerprint, generation=current_generation, history=history,
                     evaluations=evaluations, failures=failures, local_steps=local_steps,
+                    local_step_size=local_step_size,
                     elapsed=elapsed0 + time.perf_counter() - t_start)
         _atomic_save(checkpoint, arrays, meta)
 
@@ -242,9 +253,12 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
                 local_info = {"result": "skipped (best unchanged)", "steps": 0,
                               "cost_before": float(costs[best]), "cost_after": float(costs[best])}
             elif local is not None and method.placement == "inside" and i > s.T1:
-                z, code, steps, cost = _run_jit(problem, local, z_from_u(population[best]),
-                                                s.local_steps)
+                solver = with_initial_step_size(local, local_step_size)
+                z, code, steps, cost, final_step = _run_jit(
+                    problem, solver, z_from_u(population[best]), s.local_steps)
                 steps, cost = int(steps), float(cost)
+                if s.carry_over and np.isfinite(float(final_step)) and float(final_step) > 0:
+                    local_step_size = float(final_step)
                 local_steps += steps
                 local_info = {"result": _result_name(code), "steps": steps,
                               "cost_before": float(costs[best]), "cost_after": cost}
@@ -298,7 +312,8 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
     steps, code = generation, 0
     after_info = None
     if not interrupted and local is not None and method.placement == "after" and s.T3 > 0:
-        z, code, lsteps, cost = _run_jit(problem, local, z_best, s.T3)
+        solver = with_initial_step_size(local, initial_step_size)
+        z, code, lsteps, cost, _ = _run_jit(problem, solver, z_best, s.T3)
         local_steps += int(lsteps)
         after_info = {"result": _result_name(code), "steps": int(lsteps),
                       "cost_before": best_cost, "cost_after": float(cost)}

@@ -56,7 +56,7 @@ def _run(problem: Problem, solver, z0, max_steps: int):
     )  # fmt: skip
     z = sol.value
     cost = jnp.sum(problem.residuals(z) ** 2)
-    return z, sol.result._value, sol.stats["num_steps"], cost
+    return z, sol.result._value, sol.stats["num_steps"], cost, sol.state.search_state.step_size
 
 
 _run_jit = eqx.filter_jit(_run)
@@ -114,7 +114,7 @@ def solve(problem: Problem, start, solver: str = "lm", max_steps: int = 200,
     ``max_steps`` bounds the iterations (the paper's T3 for ``lma``/``tra``)."""
     z0 = _start_z(problem, start)
     t0 = time.perf_counter()
-    z, code, steps, _ = _run_jit(problem, make_solver(solver, rtol, atol), z0, max_steps)
+    z, code, steps, _, _ = _run_jit(problem, make_solver(solver, rtol, atol), z0, max_steps)
     z.block_until_ready()
     wall = time.perf_counter() - t0
     return summarize(problem, z, steps, code, solver, wall)
@@ -131,7 +131,7 @@ def multistart(problem: Problem, starts, solver: str = "lm", max_steps: int = 20
     if z0s.ndim != 2:
         raise ValueError("multistart needs a batch of starts, shape (K, n_free).")
     t0 = time.perf_counter()
-    zs, codes, steps, costs = _run_many(problem, make_solver(solver, rtol, atol), z0s, max_steps)
+    zs, codes, steps, costs, _ = _run_many(problem, make_solver(solver, rtol, atol), z0s, max_steps)
     costs = np.asarray(costs)
     wall = time.perf_counter() - t0
     ranked = np.where(np.isfinite(costs), costs, np.inf)

@@ -6,7 +6,8 @@
 - **TRA** (eqs 28–32, Branch–Coleman–Li 1999; Byrd–Schnabel–Shultz 1988): the
   `TwoDimensionalSubspaceDescent` minimises the Gauss–Newton model q(d) = E + gᵀd + ½dᵀBd,
   B = JᵀJ, over ‖d‖₂ ≤ Δ restricted to span{g, n}, n the Gauss–Newton direction, driven
-  by Optimistix's ``ClassicalTrustRegion`` with the paper's constants: reject when
+  by `PaperTrustRegion` (Optimistix's trust-region update with the paper's constants and
+  a settable initial radius): reject when
   ρ < 0.1 (and so when E increases), Δ ← Δ/2 there, Δ kept for 0.1 ≤ ρ ≤ 0.75, Δ ← 2Δ
   for ρ > 0.75. Δ1 = 1 in the solver's coordinates z (about a third of the box).
 
@@ -30,6 +31,11 @@ from optimistix._misc import max_norm  # noqa: F401  (re-export for users of the
 from optimistix._search import AbstractDescent, AbstractSearch, FunctionInfo
 from optimistix._solution import RESULTS
 from optimistix._solver.levenberg_marquardt import DampedNewtonDescent
+from optimistix._solver.trust_region import (
+    ClassicalTrustRegion,
+    _AbstractTrustRegion,
+    _TrustRegionState,
+)
 
 _default_verbose = optx.LevenbergMarquardt(1e-8, 1e-8).verbose
 
@@ -42,12 +48,12 @@ class MultiplicativeDamping(AbstractSearch):
     """The paper's LMA rule for the damping h = 1/step_size: accept iff the cost
     decreases; h ← h/10 after an accepted step, h ← 10·h after a rejected one."""
 
-    initial_damping: float = 0.01
+    initial_damping: jax.Array = eqx.field(default_factory=lambda: jnp.array(0.01))
     factor: float = 10.0
 
     def init(self, y, f_info_struct):
         del y, f_info_struct
-        return _DampingState(step_size=jnp.array(1.0 / self.initial_damping))
+        return _DampingState(step_size=1.0 / jnp.asarray(self.initial_damping, dtype=float))
 
     def step(self, first_step, y, y_eval, f_info, f_eval_info, state):
         del y, y_eval
@@ -56,6 +62,25 @@ class MultiplicativeDamping(AbstractSearch):
         multiplier = jnp.where(first_step, 1.0, jnp.where(decreased, self.factor, 1 / self.factor))
         step_size = state.step_size * multiplier
         return step_size, accept, RESULTS.successful, _DampingState(step_size=step_size)
+
+
+class PaperTrustRegion(_AbstractTrustRegion):
+    """The paper's radius rule (reject for ρ < 0.1 and halve; keep for ρ ≤ 0.75; double
+    above) with the Gauss–Newton predicted reduction of ``optx.ClassicalTrustRegion``, and
+    a settable initial radius (so a hybrid can carry the radius across generations)."""
+
+    high_cutoff: float = 0.75
+    low_cutoff: float = 0.1
+    high_constant: float = 2.0
+    low_constant: float = 0.5
+    initial_radius: jax.Array = eqx.field(default_factory=lambda: jnp.array(1.0))
+
+    def init(self, y, f_info_struct):
+        del y, f_info_struct
+        return _TrustRegionState(step_size=jnp.asarray(self.initial_radius, dtype=float))
+
+    def predict_reduction(self, y_diff, f_info):
+        return ClassicalTrustRegion.predict_reduction(self, y_diff, f_info)
 
 
 class _SubspaceState(eqx.Module):
@@ -150,7 +175,16 @@ class PaperTRA(optx.AbstractGaussNewton):
     atol: float
     norm: Callable = optx.max_norm
     descent: TwoDimensionalSubspaceDescent = TwoDimensionalSubspaceDescent()
-    search: optx.ClassicalTrustRegion = optx.ClassicalTrustRegion(
-        high_cutoff=0.75, low_cutoff=0.1, high_constant=2.0, low_constant=0.5
-    )
+    search: PaperTrustRegion = PaperTrustRegion()
     verbose: Callable = _default_verbose
+
+
+def with_initial_step_size(solver, step_size):
+    """``solver`` starting from a given damping (LMA: h = 1/step_size) or radius (TRA: Δ =
+    step_size); other solvers are returned unchanged (their searches restart at 1)."""
+    step_size = jnp.asarray(step_size, dtype=float)
+    if isinstance(solver, PaperLMA):
+        return eqx.tree_at(lambda s: s.search.initial_damping, solver, 1.0 / step_size)
+    if isinstance(solver, PaperTRA):
+        return eqx.tree_at(lambda s: s.search.initial_radius, solver, step_size)
+    return solver
