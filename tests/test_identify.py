@@ -28,16 +28,19 @@ def _starts(problem):
     return np.stack([u_pert, u_rand])
 
 
-# What each solver achieves from those starts within 200 steps (noise-free data).
+# What each solver achieves from those starts (noise-free data).
 # IndirectLevenbergMarquardt converges only linearly here: its root-find on the damping
 # keeps steps short along the three exactly-null directions of JᵀJ, and it stalls at
-# cost ~1e-9 (measured 6e-10 … 3e-9 after 300 steps); we assert that honest outcome.
+# cost ~1e-9 (measured 6e-10 … 3e-9 after 300 steps); we assert that honest outcome,
+# with fewer steps since it never stops early.
 REACHES_ZERO = {"lm": True, "dogleg": True, "lma": True, "tra": True, "indirect_lm": False}
+MAX_STEPS = {"indirect_lm": 80}
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_solver_outcome_on_table1(problem, solver):
-    res = jh.multistart(problem, _starts(problem), solver=solver, max_steps=200)
+    res = jh.multistart(problem, _starts(problem), solver=solver,
+                        max_steps=MAX_STEPS.get(solver, 200))
     for row in res.extra["starts"]:
         p = row["params"]
         assert jh.TABLE1_BOUNDS.contains(jh.Parameters.from_dict(p))  # bounds by construction
