@@ -197,6 +197,11 @@ def test_bad_drives_are_refused():
         jh.Drive.from_current(t, H, jh.ACTUATOR2)
     with pytest.raises(TypeError, match="drive must be"):
         jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, (t, H))
+    batch = jh.Parameters.from_array(np.stack([jh.TABLE1_TRUE.to_array()] * 2))
+    with pytest.raises(TypeError, match="drive must be"):
+        jh.simulate_batch(batch, jh.ACTUATOR1, (t, H))
+    with pytest.raises(ValueError, match="substeps"):
+        jh.simulate_batch(batch, jh.ACTUATOR1, jh.Drive(t, H), substeps=0)
 
 
 def test_nonuniform_time_matches_reference():

@@ -185,6 +185,7 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
     local_step_size = initial_step_size
 
     # -- state ------------------------------------------------------------------------------
+    last_local_u = None  # where the last local solve converged (see the skip below)
     if resume and checkpoint is not None and os.path.exists(checkpoint):
         arrays, meta = _load(checkpoint)
         if meta["fingerprint"] != fingerprint:
@@ -200,6 +201,8 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
         U = jnp.asarray(arrays["U"]) if "U" in arrays else None
         elapsed0 = meta["elapsed"]
         local_step_size = meta.get("local_step_size", local_step_size)
+        if "last_local_u" in arrays:
+            last_local_u = np.asarray(arrays["last_local_u"])
     else:
         key, k0 = jax.random.split(jax.random.PRNGKey(seed))
         genes = jax.random.bernoulli(k0, 0.5, (s.q1, n, s.bits)).astype(jnp.uint8)
@@ -227,9 +230,6 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
     t_start = time.perf_counter()
     interrupted = False
     best_u, best_cost = None, np.inf
-    last_local_u = None
-    if resume and checkpoint is not None and "last_local_u" in (arrays if history else {}):
-        last_local_u = np.asarray(arrays["last_local_u"])
     if history:
         best_cost = history[-1]["best_cost"]
         best_u = np.asarray(history[-1]["best_u"])

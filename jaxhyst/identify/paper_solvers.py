@@ -27,7 +27,6 @@ import jax
 import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
-from optimistix._misc import max_norm  # noqa: F401  (re-export for users of the solvers)
 from optimistix._search import AbstractDescent, AbstractSearch, FunctionInfo
 from optimistix._solution import RESULTS
 from optimistix._solver.levenberg_marquardt import DampedNewtonDescent

@@ -179,6 +179,23 @@ def simulate_unchecked(
 _simulate_jit = eqx.filter_jit(simulate_unchecked)
 
 
+def _check_inputs(params, actuator, drive, variant, substeps) -> None:
+    """The public entry points' validation: types, substeps, physical parameter values."""
+    if not isinstance(params, Parameters):
+        raise TypeError(f"params must be jaxhyst.Parameters; got {type(params).__name__}.")
+    if not isinstance(actuator, Actuator):
+        raise TypeError(f"actuator must be jaxhyst.Actuator; got {type(actuator).__name__}.")
+    if not isinstance(drive, Drive):
+        raise TypeError(
+            f"drive must be jaxhyst.Drive (e.g. Drive(t, H)); got {type(drive).__name__}."
+        )
+    if not isinstance(variant, JAVariant):
+        raise TypeError(f"variant must be a JAVariant (e.g. EnergyBasedJA()); got {variant!r}.")
+    if not isinstance(substeps, int) or substeps < 1:
+        raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
+    check_parameters(params)
+
+
 def simulate(
     params: Parameters,
     actuator: Actuator,
@@ -200,17 +217,7 @@ def simulate(
     over parameter sets use ``jax.vmap(simulate_unchecked, in_axes=(0, None, None))``
     or `jaxhyst.simulate_batch`.
     """
-    if not isinstance(params, Parameters):
-        raise TypeError(f"params must be jaxhyst.Parameters; got {type(params).__name__}.")
-    if not isinstance(actuator, Actuator):
-        raise TypeError(f"actuator must be jaxhyst.Actuator; got {type(actuator).__name__}.")
-    if not isinstance(drive, Drive):
-        raise TypeError(
-            f"drive must be jaxhyst.Drive (e.g. Drive(t, H)); got {type(drive).__name__}."
-        )
-    if not isinstance(substeps, int) or substeps < 1:
-        raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
-    check_parameters(params)
+    _check_inputs(params, actuator, drive, variant, substeps)
     return _simulate_jit(params, actuator, drive, variant, substeps)
 
 
@@ -230,10 +237,10 @@ def simulate_batch(
 ) -> Simulation:
     """`simulate` for a batch of parameter sets (leaves of shape (P,)) in one vmapped,
     jitted call: signals of shape (P, T). This is the GA's population evaluation."""
+    _check_inputs(params, actuator, drive, variant, substeps)
     if jnp.ndim(params.Ms) != 1:
         raise ValueError(
             "simulate_batch needs Parameters with 1-D leaves of shape (P,); use simulate "
             "for a single parameter set."
         )
-    check_parameters(params)
     return _simulate_batch(params, actuator, drive, variant, substeps)
