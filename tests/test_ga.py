@@ -171,3 +171,29 @@ def test_failed_individuals_get_zero_fitness_and_are_counted(problem):
 
 def u_first(res, problem):
     return problem.space.u_from_params(res.params)[0]
+
+
+def test_ctrl_c_mid_generation_keeps_best_and_resumes_exactly(problem, gatr1_run, tmp_path,
+                                                               monkeypatch):
+    from jaxhyst.identify import hybrid
+
+    real_evaluate = hybrid._evaluate
+    calls = {"n": 0}
+
+    def interrupting(prob, U):
+        calls["n"] += 1
+        if calls["n"] == 7:  # inside generation 7, after six complete generations
+            raise KeyboardInterrupt
+        return real_evaluate(prob, U)
+
+    path = tmp_path / "ctrl_c.npz"
+    monkeypatch.setattr(hybrid, "_evaluate", interrupting)
+    part = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
+                         checkpoint_every=100)
+    monkeypatch.setattr(hybrid, "_evaluate", real_evaluate)
+    assert part.result == "interrupted" and np.isfinite(part.cost)
+    assert len(part.extra["history"]) == 6
+    resumed = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
+                            resume=True)
+    np.testing.assert_array_equal(resumed.params.to_array(), gatr1_run.params.to_array())
+    assert [h["generation"] for h in resumed.extra["history"]] == list(range(1, 11))

@@ -211,23 +211,28 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
         evaluations = failures = local_steps = 0
         elapsed0 = 0.0
 
-    def save(current_generation):
+    def snapshot():
+        """The state at a generation boundary: what a checkpoint holds. (An interrupt can
+        land mid-generation; checkpointing only snapshots keeps resume exact.)"""
+        return dict(key=key, genes=genes, U=U, generation=generation, n_history=len(history),
+                    evaluations=evaluations, failures=failures, local_steps=local_steps,
+                    local_step_size=local_step_size, last_local_u=last_local_u,
+                    elapsed=elapsed0 + time.perf_counter() - t_start)
+
+    def save(snap):
         if checkpoint is None:
             return
-        arrays = {"key": np.asarray(key)}
-        if genes is not None:
-            arrays["genes"] = np.asarray(genes)
-        if U is not None:
-            arrays["U"] = np.asarray(U)
-        if last_local_u is not None:
-            arrays["last_local_u"] = last_local_u
-        meta = dict(fingerprint=fingerprint, generation=current_generation, history=history,
-                    evaluations=evaluations, failures=failures, local_steps=local_steps,
-                    local_step_size=local_step_size,
-                    elapsed=elapsed0 + time.perf_counter() - t_start)
+        arrays = {"key": np.asarray(snap["key"])}
+        for name in ("genes", "U", "last_local_u"):
+            if snap[name] is not None:
+                arrays[name] = np.asarray(snap[name])
+        meta = {k: snap[k] for k in ("generation", "evaluations", "failures", "local_steps",
+                                      "local_step_size", "elapsed")}
+        meta.update(fingerprint=fingerprint, history=history[: snap["n_history"]])
         _atomic_save(checkpoint, arrays, meta)
 
     t_start = time.perf_counter()
+    committed = snapshot()
     interrupted = False
     best_u, best_cost = None, np.inf
     if history:
@@ -291,13 +296,14 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
                     genes = None
                 U = _fcga_step(k, population, fit, i, T, s.pc, s.pm, s.beta, elites=s.elites)
             generation = i
+            committed = snapshot()
             if every and (i % every == 0 or i == T):
                 print(f"[{method.name or 'hybrid'}] generation {i}/{T} {history[-1]['phase']}: "
                       f"best cost {best_cost:.3e}, best F {history[-1]['best_fitness']:.4g}, "
                       f"{evaluations} evaluations, {history[-1]['elapsed']:.1f} s",
                       file=sys.stderr, flush=True)
             if checkpoint is not None and checkpoint_every and i % checkpoint_every == 0:
-                save(generation)
+                save(committed)
             if stop_after is not None and len(history) >= stop_after and generation < T:
                 interrupted = True
                 break
@@ -306,7 +312,9 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
         print(f"[{method.name or 'hybrid'}] interrupted after generation {generation}; "
               "returning the best so far", file=sys.stderr, flush=True)
     if interrupted:
-        save(generation)
+        save(committed)
+        generation = committed["generation"]
+        del history[committed["n_history"]:]
 
     z_best = z_from_u(jnp.asarray(best_u))
     steps, code = generation, 0
