@@ -98,7 +98,7 @@ def summarize(problem: Problem, z, steps, code, solver_name: str, wall: float,
     params = problem.space.params_from_z(z)
     pred = problem.predict(params)
     e = np.asarray(pred - problem.data)
-    cost = float(np.sum(np.asarray(problem.residuals(z)) ** 2))
+    cost = float(np.sum(e**2) / (problem.scale**2 * e.shape[0]))  # Σr², as in residuals
     return IdentificationResult(
         params=params, free=problem.space.names, cost=cost, objective=float(np.sum(e**2)),
         rms_error=float(np.sqrt(np.mean(e**2))), max_abs_error=float(np.max(np.abs(e))),

@@ -201,8 +201,7 @@ class Problem(eqx.Module):
         """Normalised residuals r(z) = (model − data)/(scale·√N), shape (N,): Optimistix's
         ``fn(y, args)`` for least squares in the unconstrained coordinates z."""
         del args
-        r = self.predict(self.space.params_from_z(z)) - self.data
-        return r / (self.scale * np.sqrt(self.data.shape[0]))
+        return self.residuals_u(u_from_z(z))
 
     def residuals_u(self, u) -> jax.Array:
         """As `residuals`, in box coordinates u ∈ [0, 1]ⁿ (the GA's)."""
@@ -215,7 +214,7 @@ class Problem(eqx.Module):
 
     def cost(self, z) -> jax.Array:
         """Normalised cost Σ r² (dimensionless; 0 at a perfect fit)."""
-        return jnp.sum(self.residuals(z) ** 2)
+        return self.cost_u(u_from_z(z))
 
     def objective(self, params: Parameters) -> jax.Array:
         """The paper's E(θ) = Σ_k (y(k) − ỹ(k, θ))² (eq 15), in the output's unit squared."""
