@@ -116,6 +116,7 @@ def test_short_gatr1_improves_by_orders_of_magnitude(gatr1_run):
     best = [h["best_cost"] for h in history]
     assert all(b2 <= b1 for b1, b2 in zip(best, best[1:], strict=False))  # elitism
     assert jh.TABLE1_BOUNDS.contains(gatr1_run.params)
+    assert gatr1_run.report is not None and gatr1_run.report.rank == 7  # hybrids report too
 
 
 def test_same_seed_same_result_and_different_seeds_differ(problem, gatr1_run):

@@ -1,14 +1,18 @@
-"""Identifiability analysis (issue 5, first part): null directions found from the
-Jacobian match the ones derived by hand in docs/theory.md."""
+"""Identifiability and uncertainty (issue 5): null directions found from the Jacobian
+match the ones derived by hand in docs/theory.md; identifiable combinations; practical
+non-identifiability; profile likelihood; coverage of the 95 % intervals."""
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
+import pytest
 from helpers import table1_problem
 
 import jaxhyst as jh
-from jaxhyst.analysis import identifiability
+from jaxhyst.analysis import coverage, fit_replicates, identifiability, profile_likelihood
 from jaxhyst.params import NAMES
 
 
@@ -36,16 +40,32 @@ def test_table1_displacement_has_exactly_the_three_structural_null_directions():
     Q, _ = np.linalg.qr(found.T)  # orthonormal basis of the found null space
     for v in HAND:  # each hand-derived direction lies in the found null space
         assert np.linalg.norm(v - Q @ (Q.T @ v)) < 1e-6
-    assert len(rep.suggest_fix) == 3
+    # the echelon pivots follow PREFER_FIX: datasheet constants and the mass
+    assert rep.suggest_fix == ("Ms", "lambda_s", "Mz")
+    assert rep.suggest_fixed() == ("Ms", "lambda_s", "Mz")  # noise-free: nothing else
     for n in ("a", "k", "c"):
         assert rep.std_errors[n] is not None
     for n in ("Ms", "alpha", "lambda_s", "E", "Kz", "Mz", "Cz"):
         assert rep.std_errors[n] is None
     assert "NOT identifiable" in str(rep)
+    # the identifiable combinations are the invariants of the three directions
+    p = jh.TABLE1_TRUE
+    expect = {"Ms·alpha": p.alpha * p.Ms, "Kz/Mz": p.Kz / p.Mz, "Cz/Mz": p.Cz / p.Mz,
+              "lambda_s·E/Mz": p.lambda_s * p.E / p.Mz}
+    got = {c["text"]: c for c in rep.combinations}
+    assert set(got) == set(expect), got.keys()
+    for text, value in expect.items():
+        assert got[text]["identifiable"]
+        assert abs(got[text]["value"] / float(value) - 1) < 1e-12
+    assert not rep.combination({"Kz": 1})["identifiable"]
+    assert rep.combination({"Kz": 1, "Mz": -1})["identifiable"]
 
 
 def test_no_null_direction_once_the_right_parameters_are_fixed():
-    problem = table1_problem(fixed=["Ms", "lambda_s", "Mz"])
+    full = table1_problem()
+    fix = identifiability(full, jh.TABLE1_TRUE).suggest_fixed()
+    problem = full.with_fixed({n: getattr(jh.TABLE1_TRUE, n) for n in fix})
+    assert problem.space.names == ("a", "k", "alpha", "c", "E", "Kz", "Cz")
     rep = identifiability(problem, jh.TABLE1_TRUE)
     assert rep.null_directions == [] and rep.suggest_fix == ()
     assert all(rep.std_errors[n] is not None for n in rep.names)
@@ -69,3 +89,60 @@ def test_quasi_static_drive_leaves_mass_and_damping_practically_unidentifiable()
     assert rel["Mz"] > 1.0 and rel["Cz"] > 0.1, rel
     for n in ("a", "k", "c", "E", "alpha"):
         assert rel[n] < 0.05, (n, rel)
+    assert rep.poorly_determined() == ("Mz",)
+    assert rep.suggest_fixed() == ("Mz",)
+    assert "poorly determined" in str(rep)
+
+
+# -- coverage and profile likelihood -------------------------------------------------------
+# Table 1 actuator at 100 Hz, one observed period of 50 samples; the four JA parameters a,
+# k, α̃, c free (identifiable), the rest fixed at the truth; white noise of 0.1 % of
+# max|y|. 240 replicates, fitted by LM in two vmapped batches of 120.
+R, NOISE = 240, 1e-3
+
+
+@pytest.fixture(scope="module")
+def replicates():
+    p = jh.TABLE1_TRUE
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=50)
+    problem = jh.synthetic_problem(p, drive, jh.ACTUATOR1, jh.TABLE1_BOUNDS,
+                                   fixed=["Ms", "lambda_s", "E", "Kz", "Mz", "Cz"])
+    y = np.asarray(problem.data)
+    sd = NOISE * np.max(np.abs(y))
+    data = y + sd * np.random.default_rng(0).standard_normal((R, y.size))
+    fits = fit_replicates(problem, data, p, solver="lm", max_steps=30, batch_size=120)
+    return problem, data, fits
+
+
+def test_95_percent_intervals_cover_the_truth_in_95_percent_of_noisy_replicates(replicates):
+    problem, _, fits = replicates
+    truth = np.asarray(problem.space.free_values(jh.TABLE1_TRUE))
+    cov = coverage(fits["values"], fits["std_errors"], truth)
+    # binomial tolerance: 3 standard deviations of a proportion 0.95 over R trials
+    tol = 3 * np.sqrt(0.95 * 0.05 / R)
+    print(f"coverage of the 95 % intervals over {R} replicates: "
+          + ", ".join(f"{n} {c:.3f}" for n, c in zip(fits["names"], cov, strict=True))
+          + f" (accepted {0.95 - tol:.3f} … {0.95 + tol:.3f})")
+    assert np.all(np.abs(cov - 0.95) <= tol), cov
+    ok = np.array([r in ("successful", "nonlinear_max_steps_reached") for r in fits["results"]])
+    assert ok.all() and np.all(np.isfinite(fits["cost"]))
+
+
+def test_profile_likelihood_agrees_with_the_linear_interval_and_flags_flat_profiles(replicates):
+    problem, data, fits = replicates
+    one = eqx.tree_at(lambda q: q.data, problem, jnp.asarray(data[0]))
+    best = problem.space.params_from_free(fits["values"][0])
+    lo, hi = identifiability(one, best).intervals["k"]
+    # batch size and max_steps as in the replicate fits: the compiled program is reused
+    same = {"max_steps": 30, "batch_size": 120}
+    prof = profile_likelihood(one, best, "k", n=15, **same)
+    assert prof.identifiable
+    assert prof.interval[0] < float(best.k) < prof.interval[1]
+    # weakly nonlinear at 0.1 % noise: the profile interval is close to the GN one
+    assert abs((prof.interval[1] - prof.interval[0]) / (hi - lo) - 1) < 0.25, (prof, lo, hi)
+    assert np.min(prof.delta_chi2) < 1e-6 and np.max(prof.delta_chi2) > 3.84
+    # 30 % noise: the data no longer bound c inside its box
+    noisy = eqx.tree_at(lambda q: q.data, problem,
+                        jnp.asarray(problem.data + 300 * (data[0] - problem.data)))
+    flat = profile_likelihood(noisy, best, "c", grid=np.linspace(0.0, 0.3, 7), **same)
+    assert not flat.identifiable and "not bounded" in str(flat)

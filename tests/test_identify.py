@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -61,6 +63,12 @@ def test_single_solve_and_result_object(problem):
     assert "lambda_s" in text and "N*s/m" in text and "successful" in text
     d = res.to_dict()
     assert d["params"]["Ms"]["unit"] == "A/m" and d["params"]["Ms"]["free"]
+    # every result carries its identifiability report, printed and in the JSON
+    assert res.report is not None and len(res.report.null_directions) == 3
+    assert "NOT identifiable" in text and "identifiable combination" in text
+    back = json.loads(json.dumps(d))
+    assert back["identifiability"]["rank"] == 7
+    assert back["identifiability"]["suggest_fix"] == ["Ms", "lambda_s", "Mz"]
 
 
 def test_scipy_trf_reaches_the_same_optimum(problem):

@@ -1,5 +1,15 @@
-"""What the data determine: Jacobian SVD, null directions, standard errors."""
+"""What the data determine: Jacobian SVD, null directions, standard errors, identifiable
+combinations, profile likelihood and replicate fits."""
 
-from .identifiability import IdentifiabilityReport, identifiability
+from .identifiability import PREFER_FIX, IdentifiabilityReport, identifiability
+from .uncertainty import ProfileLikelihood, coverage, fit_replicates, profile_likelihood
 
-__all__ = ["IdentifiabilityReport", "identifiability"]
+__all__ = [
+    "PREFER_FIX",
+    "IdentifiabilityReport",
+    "ProfileLikelihood",
+    "coverage",
+    "fit_replicates",
+    "identifiability",
+    "profile_likelihood",
+]

@@ -1,75 +1,54 @@
-"""Local identifiability of the free parameters of a `Problem` at a parameter point.
+"""Local identifiability of the free parameters of a problem at a parameter point.
 
-Coordinates: relative changes of the free parameters, d log|θ_r| (so a null direction
-reads directly as a power law: y is unchanged when θ_r is multiplied by s^{v_r}). For a
-parameter at exactly 0 the box width is used as its scale instead.
+Coordinates: relative changes of the free parameters, x_r = d log|θ_r| (θ = θ0·(1 + x)),
+so a null direction reads directly as a power law: the output is unchanged when θ_r is
+multiplied by s^{v_r}. For a parameter at exactly 0 the box width is used as its scale.
 
-- Jacobian J = ∂y/∂log|θ| from ``jax.jacfwd`` (output units), its singular values and
-  condition number.
+- Jacobian J = ∂y/∂x from ``jax.jacfwd`` (output units), singular values and condition
+  number.
 - Null directions: right singular vectors with σ/σ₁ below ``null_tol`` (structural
-  non-identifiability gives ~1e-15). The null space is returned in reduced row-echelon
-  form, which makes each direction sparse and names it: e.g. Ms^+1 · alpha^-1 means the
-  output is unchanged under Ms → s·Ms, alpha → alpha/s. Found from J, never hard-coded.
-- Suggestion: the pivot parameters of that echelon form; fixing them removes every null
-  direction (their columns of the null basis form an identity block).
-- Gauss–Newton covariance σ²·(JᵀJ)⁺ on the identifiable subspace, σ² = Σe²/(N − rank);
-  standard errors and 95 % intervals (normal quantile 1.96) for parameters that have no
-  component along a null direction; the others are reported as not identifiable rather
-  than with a huge or NaN interval.
+  non-identifiability gives ~1e-15). The null space is put in reduced row-echelon form,
+  which makes each direction sparse and names it (``Ms^+1 · alpha^-1``: the output is
+  unchanged under Ms → s·Ms, alpha → alpha/s). Found from J, never hard-coded. The
+  columns are ordered by `PREFER_FIX` first, so the echelon pivots — the parameters to fix
+  — are the ones a user is most likely to know (datasheet Ms and λs, the weighed mass).
+- Identifiable combinations: for every non-pivot parameter f touched by a null direction,
+  the power product θ_f · Π θ_pivot^(−B[row, f]) is invariant along all null directions
+  (B the echelon basis); its value, standard error and interval are reported.
+- Gauss–Newton covariance of x: σ²·(JᵀJ)⁺ on the identifiable subspace with
+  σ² = Σe²/(N − rank) from the residuals; standard errors and 95 % intervals (normal
+  quantile 1.96) for parameters with no component along a null direction; the others are
+  reported as "not identifiable" rather than with a huge or NaN interval. An identifiable
+  parameter whose relative standard error exceeds ``max_rel_se`` (default 0.5) is
+  "poorly determined" (practical non-identifiability: it depends on the noise level).
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..identify.problem import Problem
-from ..params import NAMES, Parameters
+from ..params import NAMES, UNITS
 
 Z95 = 1.959963984540054
 
+#: Order in which parameters are preferred as the ones to fix (pivots of the null basis):
+#: material constants from datasheets first, then the measurable mass, then the rest.
+PREFER_FIX = ("Ms", "lambda_s", "Mz", "E", "Kz", "Cz", "alpha", "c", "a", "k")
 
-@dataclass
-class IdentifiabilityReport:
-    """Result of `identifiability`; all arrays NumPy, names in the order of ``names``."""
 
-    names: tuple[str, ...]
-    values: np.ndarray
-    singular_values: np.ndarray  # relative, σ/σ₁, descending
-    condition_number: float  # σ₁/σ_min over the identifiable subspace
-    null_directions: list[dict]  # {"exponents": {name: p}, "text": str}
-    suggest_fix: tuple[str, ...]
-    sigma: float  # residual standard deviation, output unit
-    std_errors: dict  # name -> float, or None if not identifiable
-    intervals: dict  # name -> (low, high), or None
-    correlation: np.ndarray  # on identifiable parameters (NaN rows for the others)
+def _base_name(name: str) -> str:
+    return re.sub(r"\[.*\]$", "", name)
 
-    @property
-    def identifiable(self) -> tuple[str, ...]:
-        return tuple(n for n in self.names if self.std_errors[n] is not None)
 
-    def __str__(self) -> str:
-        lines = [f"Identifiability of {len(self.names)} free parameters: "
-                 f"rank {len(self.names) - len(self.null_directions)}, condition number "
-                 f"{self.condition_number:.3g}"]
-        sv = ", ".join(f"{s:.2e}" for s in self.singular_values)
-        lines.append(f"  singular values / σ1: {sv}")
-        for d in self.null_directions:
-            lines.append(f"  NOT identifiable: {d['text']}")
-        if self.suggest_fix:
-            lines.append(f"  fix {', '.join(self.suggest_fix)} (or report the invariant "
-                         "combinations) to make the rest identifiable")
-        for n, v in zip(self.names, self.values, strict=True):
-            se = self.std_errors[n]
-            if se is None:
-                lines.append(f"  {n:<9}= {v:.6g}  not identifiable from these data")
-            else:
-                lo, hi = self.intervals[n]
-                lines.append(f"  {n:<9}= {v:.6g} ± {se:.2g}  (95 %: {lo:.6g} … {hi:.6g})")
-        return "\n".join(lines)
+def _preference(names) -> list[int]:
+    rank = {n: i for i, n in enumerate(PREFER_FIX)}
+    return sorted(range(len(names)), key=lambda i: (rank.get(_base_name(names[i]), 99), i))
 
 
 def _rref(A, tol=1e-9):
@@ -92,70 +71,296 @@ def _rref(A, tol=1e-9):
     return A, pivots
 
 
-def _power_law_text(exponents: dict) -> str:
-    terms = " · ".join(f"{n}^{p:+.3g}" for n, p in exponents.items())
-    return f"the output is unchanged along {terms} (θ → θ·s^p for each listed θ)"
+def _clean(v, tol=1e-6):
+    v = np.where(np.abs(v) < tol, 0.0, v)
+    return np.round(v, 3) + 0.0
 
 
-def identifiability(problem: Problem, params: Parameters, null_tol: float = 1e-8
-                    ) -> IdentifiabilityReport:
-    """Identifiability report of ``problem``'s free parameters at ``params`` (see module
-    docstring). ``null_tol``: σ/σ₁ below which a direction counts as structurally null."""
-    space = problem.space
-    free = list(space.free)
-    names = space.names
-    theta = np.asarray(params.to_array())
-    values = theta[free]
-    width = np.asarray(space.upper - space.lower)
-    # θ = θ0·(1 + x): x is d log|θ| (sign kept for negative θ such as α̃)
-    scale = np.where(values != 0, values, np.where(width > 0, width, 1.0))
+def _power_text(exponents: dict) -> str:
+    def term(n, p):
+        return n if p == 1 else f"{n}^{p:g}"
 
-    def output(x):  # x: relative change of each free parameter
-        full = jnp.asarray(theta).at[jnp.array(free)].set(jnp.asarray(values) + x * scale)
-        return problem.predict(Parameters.from_array(full))
+    num = [term(n, p) for n, p in exponents.items() if p > 0]
+    den = [term(n, -p) for n, p in exponents.items() if p < 0]
+    text = "·".join(num) if num else "1"
+    if den:
+        text += "/" + ("·".join(den) if len(den) == 1 else "(" + "·".join(den) + ")")
+    return text
 
-    J = np.asarray(jax.jacfwd(output)(jnp.zeros(len(free))))
-    e = np.asarray(problem.predict(params) - problem.data)
+
+def _transform_text(exponents: dict) -> str:
+    def move(n, p):
+        if p == 1:
+            return f"{n} → s·{n}"
+        if p == -1:
+            return f"{n} → {n}/s"
+        return f"{n} → s^{p:g}·{n}"
+
+    return ("the output is unchanged under "
+            + ", ".join(move(n, p) for n, p in exponents.items()) + " for any s > 0")
+
+
+def _signed_power(values, p) -> float:
+    """Π θ_i^p_i, with the sign of negative θ_i kept for odd integer p_i."""
+    mag = float(np.prod(np.abs(values) ** p))
+    sign = 1.0
+    for v, e in zip(values, p, strict=True):
+        if v < 0 and e != 0 and float(e).is_integer() and int(e) % 2:
+            sign = -sign
+    return sign * mag
+
+
+@dataclass
+class IdentifiabilityReport:
+    """Result of `identifiability`; NumPy arrays, entries in the order of ``names``.
+
+    ``singular_values`` are relative (σ/σ₁, descending); ``std_errors``/``intervals`` are
+    ``None`` for parameters that are not identifiable; ``combinations`` lists the
+    identifiable power-product combinations of the non-identifiable parameters with their
+    value, standard error and 95 % interval; ``sigma`` is the residual standard deviation
+    (output unit) that scales all errors; ``cov_log`` the covariance of d log|θ|."""
+
+    names: tuple[str, ...]
+    values: np.ndarray
+    units: tuple[str, ...]
+    singular_values: np.ndarray
+    condition_number: float
+    null_directions: list[dict]
+    suggest_fix: tuple[str, ...]
+    combinations: list[dict]
+    sigma: float
+    dof: int
+    std_errors: dict
+    intervals: dict
+    correlation: np.ndarray
+    cov_log: np.ndarray
+    null_space: np.ndarray  # orthonormal rows spanning the null directions (x coordinates)
+    jacobian: np.ndarray  # ∂y/∂x, (N, n), output unit
+    residuals: np.ndarray  # model − data, output unit
+    scale: np.ndarray  # θ0 used for x (|θ| or the box width)
+    max_rel_se: float = 0.5
+
+    @property
+    def identifiable(self) -> tuple[str, ...]:
+        return tuple(n for n in self.names if self.std_errors[n] is not None)
+
+    @property
+    def rank(self) -> int:
+        return len(self.names) - len(self.null_directions)
+
+    def relative_std_errors(self) -> dict:
+        """Standard error / |value| (or / box width for a parameter at 0); None if not
+        identifiable."""
+        out = {}
+        for i, n in enumerate(self.names):
+            se = self.std_errors[n]
+            out[n] = None if se is None else se / abs(self.scale[i])
+        return out
+
+    def poorly_determined(self, max_rel_se: float | None = None) -> tuple[str, ...]:
+        """Identifiable parameters whose relative standard error exceeds ``max_rel_se``."""
+        t = self.max_rel_se if max_rel_se is None else max_rel_se
+        return tuple(n for n, r in self.relative_std_errors().items() if r is not None and r > t)
+
+    def combination(self, exponents: dict) -> dict:
+        """Value, standard error and 95 % interval of Π θ^p for ``exponents`` {name: p}
+        (e.g. ``{"alpha": 1, "Ms": 1}`` for α·Ms); ``identifiable`` False (and no error)
+        when the product changes along a null direction."""
+        unknown = [n for n in exponents if n not in self.names]
+        if unknown:
+            raise ValueError(f"{unknown} are not free parameters of this report "
+                             f"({list(self.names)}); combine free parameters only.")
+        p = np.array([float(exponents.get(n, 0.0)) for n in self.names])
+        value = _signed_power(self.values, p)
+        text = _power_text({n: exponents[n] for n in self.names if exponents.get(n, 0)})
+        ok = self.null_space.size == 0 or (
+            np.linalg.norm(self.null_space @ p) <= 1e-6 * max(np.linalg.norm(p), 1e-300))
+        if not ok:
+            return {"exponents": dict(exponents), "text": text, "value": value,
+                    "identifiable": False, "std_error": None, "interval": None}
+        se = abs(value) * float(np.sqrt(max(p @ self.cov_log @ p, 0.0)))
+        return {"exponents": dict(exponents), "text": text, "value": value,
+                "identifiable": True, "std_error": se,
+                "interval": (value - Z95 * se, value + Z95 * se)}
+
+    def suggest_fixed(self, max_rel_se: float | None = None) -> tuple[str, ...]:
+        """Parameters to fix so that the rest are identifiable and determined to
+        ``max_rel_se``: the structural pivots (`suggest_fix`), then, greedily, the worst
+        poorly determined parameter until none is left (re-analysing the remaining
+        columns of the same Jacobian each time)."""
+        t = self.max_rel_se if max_rel_se is None else max_rel_se
+        fixed = list(self.suggest_fix)
+        while True:
+            keep = [i for i, n in enumerate(self.names) if n not in fixed]
+            if not keep:
+                return tuple(fixed)
+            sub = _analyse([self.names[i] for i in keep], self.values[keep],
+                           self.scale[keep], self.jacobian[:, keep], self.residuals, 1e-8)
+            if sub["null_directions"]:  # cannot happen after fixing the pivots
+                fixed += list(sub["suggest_fix"])
+                continue
+            rel = {n: sub["std_errors"][n] / abs(self.scale[keep][j])
+                   for j, n in enumerate(sub["names"])}
+            worst = max(rel, key=rel.get)
+            if rel[worst] <= t:
+                return tuple(fixed)
+            fixed.append(worst)
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (no Jacobian)."""
+        def f(x):
+            return None if x is None else float(x)
+
+        return {
+            "names": list(self.names), "rank": self.rank,
+            "singular_values": [float(s) for s in self.singular_values],
+            "condition_number": float(self.condition_number),
+            "null_directions": self.null_directions, "suggest_fix": list(self.suggest_fix),
+            "poorly_determined": list(self.poorly_determined()),
+            "combinations": [{**c, "interval": None if c["interval"] is None
+                              else [float(c["interval"][0]), float(c["interval"][1])]}
+                             for c in self.combinations],
+            "sigma": self.sigma, "dof": self.dof,
+            "parameters": {n: {"value": float(v), "unit": u, "std_error": f(self.std_errors[n]),
+                               "interval": None if self.intervals[n] is None
+                               else [float(x) for x in self.intervals[n]]}
+                           for n, v, u in zip(self.names, self.values, self.units, strict=True)},
+            "correlation": [[None if not np.isfinite(c) else float(c) for c in row]
+                            for row in self.correlation],
+        }  # fmt: skip
+
+    def __str__(self) -> str:
+        lines = [f"Identifiability of {len(self.names)} free parameters: rank {self.rank}, "
+                 f"condition number {self.condition_number:.3g}, residual σ {self.sigma:.3g}"]
+        lines.append("  singular values / σ1: "
+                     + ", ".join(f"{s:.2e}" for s in self.singular_values))
+        for d in self.null_directions:
+            lines.append(f"  NOT identifiable: {d['text']}")
+        if self.suggest_fix:
+            lines.append(f"  fix {', '.join(self.suggest_fix)} (or report the combinations "
+                         "below) to make the rest identifiable")
+        poor = self.poorly_determined()
+        for i, n in enumerate(self.names):
+            v, u = self.values[i], self.units[i]
+            se = self.std_errors[n]
+            if se is None:
+                lines.append(f"  {n:<9}= {v:.6g} {u}  not identifiable from these data")
+            else:
+                lo, hi = self.intervals[n]
+                tag = "  poorly determined" if n in poor else ""
+                lines.append(f"  {n:<9}= {v:.6g} ± {se:.2g} {u}  (95 %: {lo:.6g} … {hi:.6g})"
+                             f"{tag}")
+        for c in self.combinations:
+            lo, hi = c["interval"]
+            lines.append(f"  {c['text']} = {c['value']:.6g} ± {c['std_error']:.2g}  "
+                         f"(95 %: {lo:.6g} … {hi:.6g})  identifiable combination")
+        return "\n".join(lines)
+
+
+def _analyse(names, values, scale, J, e, null_tol) -> dict:
+    """The NumPy part of the analysis (so that sub-problems can be re-analysed)."""
+    names = list(names)
+    n = len(names)
     U, s, Vt = np.linalg.svd(J, full_matrices=False)
-    rel = s / s[0] if s[0] > 0 else s
+    rel = s / s[0] if s.size and s[0] > 0 else np.zeros_like(s)
     null = rel < null_tol
     rank = int(np.sum(~null))
-    null_dirs, fix = [], ()
+    null_dirs, fix, combos = [], (), []
     if np.any(null):
-        basis, pivots = _rref(Vt[null])
+        order = _preference(names)
+        basis_p, piv_p = _rref(Vt[null][:, order])
+        basis = np.zeros_like(basis_p)
+        basis[:, order] = basis_p
+        pivots = [order[c] for c in piv_p]
         fix = tuple(names[p] for p in pivots)
         for row in basis:
-            row = np.where(np.abs(row) < 1e-6, 0.0, row)
-            # express as exponents, largest magnitude 1
-            row = row / np.max(np.abs(row))
-            exps = {names[i]: float(np.round(row[i], 3)) for i in np.flatnonzero(row)}
-            null_dirs.append({"exponents": exps, "text": _power_law_text(exps)})
-    dof = max(len(e) - rank, 1)
+            row = _clean(row / np.max(np.abs(row)))
+            exps = {names[i]: float(row[i]) for i in np.flatnonzero(row)}
+            null_dirs.append({"exponents": exps, "text": _transform_text(exps)})
+        touched = np.flatnonzero(np.any(np.abs(basis) > 1e-6, axis=0))
+        for f in touched:
+            if f in pivots:
+                continue
+            p = np.zeros(n)
+            p[f] = 1.0
+            for r, piv in enumerate(pivots):
+                p[piv] = -basis[r, f]
+            p = _clean(p)
+            combos.append({names[i]: float(p[i]) for i in np.flatnonzero(p)})
+    dof = max(J.shape[0] - rank, 1)
     sigma = float(np.sqrt(np.sum(e**2) / dof))
-    # pseudo-inverse of JᵀJ on the identifiable subspace
-    inv = (Vt[~null].T / s[~null] ** 2) @ Vt[~null]
-    cov_rel = sigma**2 * inv  # covariance of relative changes
-    in_null = np.zeros(len(free), bool)
-    if np.any(null):
-        in_null = np.max(np.abs(Vt[null]), axis=0) > 1e-6
+    inv = (Vt[~null].T / s[~null] ** 2) @ Vt[~null]  # (JᵀJ)⁺ on the identifiable subspace
+    cov = sigma**2 * inv
+    in_null = np.max(np.abs(Vt[null]), axis=0) > 1e-6 if np.any(null) else np.zeros(n, bool)
     se, ci = {}, {}
-    for i, n in enumerate(names):
+    for i, name in enumerate(names):
         if in_null[i]:
-            se[n] = ci[n] = None
+            se[name] = ci[name] = None
         else:
-            se[n] = float(np.sqrt(max(cov_rel[i, i], 0.0)) * abs(scale[i]))
-            ci[n] = (float(values[i] - Z95 * se[n]), float(values[i] + Z95 * se[n]))
-    d = np.sqrt(np.clip(np.diag(cov_rel), 0, None))
+            se[name] = float(np.sqrt(max(cov[i, i], 0.0)) * abs(scale[i]))
+            ci[name] = (float(values[i] - Z95 * se[name]), float(values[i] + Z95 * se[name]))
+    d = np.sqrt(np.clip(np.diag(cov), 0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov_rel / np.outer(d, d)
+        corr = cov / np.outer(d, d)
     corr[in_null, :] = np.nan
     corr[:, in_null] = np.nan
     cond = float(s[0] / s[~null][-1]) if rank else float("inf")
-    return IdentifiabilityReport(
-        names=names, values=values, singular_values=rel, condition_number=cond,
-        null_directions=null_dirs, suggest_fix=fix, sigma=sigma, std_errors=se,
-        intervals=ci, correlation=corr,
+    return dict(names=tuple(names), singular_values=rel, condition_number=cond,
+                null_directions=null_dirs, suggest_fix=fix, combos=combos, sigma=sigma,
+                dof=dof, std_errors=se, intervals=ci, correlation=corr, cov_log=cov,
+                null_space=Vt[null])
+
+
+@eqx.filter_jit
+def _log_jacobian(problem, x0, scale):
+    def output(dx):
+        return problem.predict_free(x0 + dx * scale)
+
+    return jax.jacfwd(output)(jnp.zeros_like(x0)), output(jnp.zeros_like(x0))
+
+
+def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float = 0.5
+                    ) -> IdentifiabilityReport:
+    """Identifiability report of ``problem``'s free parameters at ``params`` (see the module
+    docstring).
+
+    **Arguments:**
+    - ``problem``: a `Problem` (or any problem with ``space.names``, ``space.free_values``,
+      ``predict_free`` and ``data``).
+    - ``params``: the parameter point, usually the fitted one.
+    - ``null_tol``: σ/σ₁ below which a direction counts as structurally null.
+    - ``max_rel_se``: relative standard error above which an identifiable parameter is
+      flagged as poorly determined.
+    """
+    space = problem.space
+    names = tuple(space.names)
+    values = np.asarray(space.free_values(params), dtype=float)
+    width = np.asarray(space.upper - space.lower)
+    # signed θ0, so that x = dθ/θ0 = d log|θ| also for negative θ (α̃)
+    scale = np.where(values != 0, values, np.where(width > 0, width, 1.0))
+    J, pred = _log_jacobian(problem, jnp.asarray(values), jnp.asarray(scale))
+    J = np.asarray(J)
+    e = np.asarray(pred) - np.asarray(problem.data)
+    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(e))):
+        raise ValueError("The model output or its Jacobian is not finite at these parameters; "
+                         "the identifiability analysis needs a point where the model runs.")
+    a = _analyse(names, values, scale, J, e, null_tol)
+    combos = []
+    units = tuple(_unit(n) for n in names)
+    rep = IdentifiabilityReport(
+        names=names, values=values, units=units, singular_values=a["singular_values"],
+        condition_number=a["condition_number"], null_directions=a["null_directions"],
+        suggest_fix=a["suggest_fix"], combinations=combos, sigma=a["sigma"], dof=a["dof"],
+        std_errors=a["std_errors"], intervals=a["intervals"], correlation=a["correlation"],
+        cov_log=a["cov_log"], null_space=a["null_space"], jacobian=J, residuals=e,
+        scale=scale, max_rel_se=max_rel_se,
     )  # fmt: skip
+    combos.extend(rep.combination(c) for c in a["combos"])
+    return rep
 
 
-__all__ = ["IdentifiabilityReport", "identifiability", "NAMES"]
+def _unit(name: str) -> str:
+    return UNITS.get(_base_name(name), "")
+
+
+__all__ = ["IdentifiabilityReport", "identifiability", "PREFER_FIX", "NAMES"]

@@ -150,7 +150,8 @@ def _load(path):
 def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0,
                settings: GASettings | None = None, *, progress: bool | int = False,
                checkpoint: str | os.PathLike | None = None, checkpoint_every: int = 10,
-               resume: bool = False, stop_after: int | None = None) -> IdentificationResult:
+               resume: bool = False, stop_after: int | None = None, report: bool = True
+               ) -> IdentificationResult:
     """Identify ``problem`` with a hybrid GA.
 
     **Arguments:**
@@ -164,6 +165,7 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
       belongs to another problem, method, settings or seed).
     - ``stop_after``: stop after this many generations, as if interrupted (for tests and
       for splitting long runs).
+    - ``report``: attach the identifiability report at the result (one jacfwd).
 
     **Returns:** an `IdentificationResult` whose ``extra`` holds ``history`` (one dict per
     generation: best/mean fitness, best cost and parameters, cumulative evaluations and
@@ -332,7 +334,7 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
     result = summarize(problem, z_best, steps, code, method.name or repr(method), wall,
                        extra={"history": history, "evaluations": evaluations,
                               "failures": failures, "local_steps": local_steps,
-                              "after": after_info, "seed": seed})
+                              "after": after_info, "seed": seed}, report=report)
     if interrupted:
         result.result = "interrupted"
     return result

@@ -93,35 +93,47 @@ def _start_z(problem: Problem, start) -> jax.Array:
 
 
 def summarize(problem: Problem, z, steps, code, solver_name: str, wall: float,
-              extra: dict | None = None) -> IdentificationResult:
-    """Build an `IdentificationResult` at the solver coordinate ``z``."""
+              extra: dict | None = None, report: bool = True) -> IdentificationResult:
+    """Build an `IdentificationResult` at the solver coordinate ``z``, with the
+    identifiability report at that point when ``report`` (one jacfwd of the model)."""
     params = problem.space.params_from_z(z)
     pred = problem.predict(params)
     e = np.asarray(pred - problem.data)
     cost = float(np.sum(e**2) / (problem.scale**2 * e.shape[0]))  # Σr², as in residuals
-    return IdentificationResult(
+    result = IdentificationResult(
         params=params, free=problem.space.names, cost=cost, objective=float(np.sum(e**2)),
         rms_error=float(np.sqrt(np.mean(e**2))), max_abs_error=float(np.max(np.abs(e))),
         steps=int(steps), result=_result_name(code), solver=solver_name, wall_time=wall,
         output=problem.output, extra=extra or {},
     )  # fmt: skip
+    if report:
+        from ..analysis.identifiability import identifiability  # (analysis imports identify)
+
+        try:
+            result.report = identifiability(problem, params)
+        except ValueError as err:
+            result.report_error = str(err)
+    return result
 
 
 def solve(problem: Problem, start, solver: str = "lm", max_steps: int = 200,
-          rtol: float = 1e-10, atol: float = 1e-12) -> IdentificationResult:
+          rtol: float = 1e-10, atol: float = 1e-12, report: bool = True
+          ) -> IdentificationResult:
     """Run one local solver from ``start`` (`Parameters` or box coordinates u).
 
-    ``max_steps`` bounds the iterations (the paper's T3 for ``lma``/``tra``)."""
+    ``max_steps`` bounds the iterations (the paper's T3 for ``lma``/``tra``); ``report``
+    attaches the identifiability report at the solution."""
     z0 = _start_z(problem, start)
     t0 = time.perf_counter()
     z, code, steps, _, _ = _run_jit(problem, make_solver(solver, rtol, atol), z0, max_steps)
     z.block_until_ready()
     wall = time.perf_counter() - t0
-    return summarize(problem, z, steps, code, solver, wall)
+    return summarize(problem, z, steps, code, solver, wall, report=report)
 
 
 def multistart(problem: Problem, starts, solver: str = "lm", max_steps: int = 200,
-               rtol: float = 1e-10, atol: float = 1e-12) -> IdentificationResult:
+               rtol: float = 1e-10, atol: float = 1e-12, report: bool = True
+               ) -> IdentificationResult:
     """Solve from K starts in one vmapped batch; returns the best, with the per-start
     table (final cost, result, steps, parameters) in ``extra["starts"]``.
 
@@ -142,4 +154,4 @@ def multistart(problem: Problem, starts, solver: str = "lm", max_steps: int = 20
         for i in range(len(costs))
     ]  # fmt: skip
     return summarize(problem, zs[best], steps[best], codes[best], f"{solver} x{len(costs)}",
-                     wall, extra={"starts": table, "best_index": best})
+                     wall, extra={"starts": table, "best_index": best}, report=report)

@@ -88,6 +88,24 @@ class ParameterSpace(eqx.Module):
         self.base = jnp.asarray(base)
 
     @property
+    def fixed(self) -> dict[str, float]:
+        """``{name: value}`` of the parameters held fixed."""
+        base = np.asarray(self.base)
+        return {n: float(base[i]) for i, n in enumerate(NAMES) if i not in self.free}
+
+    def bounds(self) -> Bounds:
+        """`Bounds` of all ten parameters (a fixed one's lower = upper = its value)."""
+        lo, hi = np.array(self.base), np.array(self.base)
+        lo[list(self.free)] = np.asarray(self.lower)
+        hi[list(self.free)] = np.asarray(self.upper)
+        return Bounds(Parameters.from_array(jnp.asarray(lo)),
+                      Parameters.from_array(jnp.asarray(hi)))
+
+    def with_fixed(self, fixed: dict[str, float]) -> ParameterSpace:
+        """This space with the parameters in ``fixed`` also held fixed (at those values)."""
+        return ParameterSpace(self.bounds(), {**self.fixed, **fixed})
+
+    @property
     def names(self) -> tuple[str, ...]:
         """Names of the free parameters, in the order of z and u."""
         return tuple(NAMES[i] for i in self.free)
@@ -101,6 +119,16 @@ class ParameterSpace(eqx.Module):
         free = self.lower + (self.upper - self.lower) * u
         full = jnp.broadcast_to(self.base, free.shape[:-1] + (len(NAMES),))
         return full.at[..., jnp.array(self.free)].set(free)
+
+    def params_from_free(self, x) -> Parameters:
+        """`Parameters` with the free entries set to ``x`` (SI values, shape (..., n_free))."""
+        x = jnp.asarray(x)
+        full = jnp.broadcast_to(self.base, x.shape[:-1] + (len(NAMES),))
+        return Parameters.from_array(full.at[..., jnp.array(self.free)].set(x))
+
+    def free_values(self, params: Parameters) -> jax.Array:
+        """The free entries of ``params`` (SI values), in the order of `names`."""
+        return params.to_array()[..., jnp.array(self.free)]
 
     def params_from_u(self, u) -> Parameters:
         return Parameters.from_array(self.theta_from_u(u))
@@ -195,6 +223,23 @@ class Problem(eqx.Module):
     def predict(self, params: Parameters) -> jax.Array:
         """The model's observed output at ``params`` (unit of ``output``)."""
         return self.drive.observed(OUTPUTS[self.output][1](self.simulate(params)))
+
+    def predict_free(self, x) -> jax.Array:
+        """`predict` as a function of the free parameters' SI values ``x`` (n_free,)."""
+        return self.predict(self.space.params_from_free(x))
+
+    @property
+    def unit(self) -> str:
+        """Unit of the observed output."""
+        return OUTPUTS[self.output][0]
+
+    def with_fixed(self, fixed: dict[str, float]) -> Problem:
+        """The same problem with the parameters in ``fixed`` ({name: SI value}) held fixed:
+        the reparameterisation an `IdentifiabilityReport.suggest_fixed` asks for, e.g.
+        ``problem.with_fixed({n: getattr(result.params, n) for n in report.suggest_fixed()})``.
+        """
+        return eqx.tree_at(lambda q: q.space, self,
+                           self.space.with_fixed({n: float(v) for n, v in fixed.items()}))
 
     # -- what the solvers see ---------------------------------------------------------
     def residuals(self, z, args=None) -> jax.Array:

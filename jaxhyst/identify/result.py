@@ -21,6 +21,9 @@ class IdentificationResult:
     - ``steps``: solver iterations; ``result``: solver outcome (Optimistix RESULTS name).
     - ``solver``, ``wall_time`` (s), ``output`` (observed quantity), ``extra`` (per-method
       details, e.g. the multi-start table or a GA history).
+    - ``report``: the `IdentifiabilityReport` at the identified point (standard errors,
+      95 % intervals, null directions, identifiable combinations), or ``None`` if it was
+      not requested; ``report_error`` says why it is missing if it failed.
     """
 
     params: Parameters
@@ -35,6 +38,8 @@ class IdentificationResult:
     wall_time: float
     output: str = "displacement"
     extra: dict = field(default_factory=dict)
+    report: object = None
+    report_error: str | None = None
 
     @property
     def success(self) -> bool:
@@ -47,6 +52,8 @@ class IdentificationResult:
             "cost": self.cost, "objective": self.objective, "rms_error": self.rms_error,
             "max_abs_error": self.max_abs_error, "steps": self.steps, "result": self.result,
             "solver": self.solver, "wall_time_s": self.wall_time, "output": self.output,
+            "identifiability": None if self.report is None else self.report.to_dict(),
+            "identifiability_error": self.report_error,
         }  # fmt: skip
 
     def __str__(self) -> str:
@@ -60,4 +67,8 @@ class IdentificationResult:
         for n in NAMES:
             mark = "" if n in self.free else "  (fixed)"
             lines.append(f"  {n:<9}= {float(getattr(self.params, n)):>13.6g} {UNITS[n]}{mark}")
+        if self.report is not None:
+            lines.append(str(self.report))
+        elif self.report_error:
+            lines.append(f"Identifiability: not available ({self.report_error})")
         return "\n".join(lines)

@@ -1,0 +1,223 @@
+"""Uncertainty beyond the local linearisation: profile likelihood and replicate fits.
+
+- `profile_likelihood`: for one parameter, re-fit all the others with that parameter held
+  at each value of a grid — one vmapped batch of local solves — and turn the costs into
+  the likelihood-ratio statistic Δχ²(v) = (E(v) − E_min)/σ̂² with σ̂² = E_min/(N − n)
+  (Gaussian noise of unknown variance, estimated from the best fit). The 95 % profile
+  interval is where Δχ² ≤ 3.84 (χ²₁ quantile); a side that never crosses inside the box
+  is reported as unbounded (the data do not bound the parameter there). Unlike the
+  Gauss–Newton interval it follows the model's nonlinearity.
+- `fit_replicates`: fit many data sets of the same problem (noisy replicates, bootstrap
+  resamples) in vmapped batches, each with its Gauss–Newton standard errors; `coverage`
+  counts how often the 95 % intervals contain the truth.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..identify.local import _result_name, _run, _start_z, make_solver
+from .identifiability import Z95
+
+CHI2_95 = 3.841458820694124  # 95 % quantile of χ² with one degree of freedom
+
+
+@dataclass
+class ProfileLikelihood:
+    """Profile of one parameter: ``grid`` values (SI), the re-fitted normalised ``cost``
+    and ``delta_chi2`` at each, the re-fitted parameters ``theta`` (G × 10), the best
+    ``value``, and the 95 % ``interval`` (a ``None`` end is not bounded by the data)."""
+
+    name: str
+    value: float
+    grid: np.ndarray
+    cost: np.ndarray
+    delta_chi2: np.ndarray
+    theta: np.ndarray
+    interval: tuple[float | None, float | None]
+    results: list[str]
+
+    @property
+    def identifiable(self) -> bool:
+        return self.interval[0] is not None and self.interval[1] is not None
+
+    def __str__(self) -> str:
+        lo, hi = self.interval
+        lo_s = "unbounded" if lo is None else f"{lo:.6g}"
+        hi_s = "unbounded" if hi is None else f"{hi:.6g}"
+        head = (f"Profile likelihood of {self.name} (best {self.value:.6g}): 95 % interval "
+                f"{lo_s} … {hi_s}")
+        if not self.identifiable:
+            head += "  — not bounded by the data on that side (practically non-identifiable)"
+        rows = [f"  {v:>13.6g}  Δχ² = {d:.4g}" for v, d in zip(self.grid, self.delta_chi2,
+                                                                  strict=True)]
+        return "\n".join([head, *rows])
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "value": self.value, "grid": self.grid.tolist(),
+                "cost": self.cost.tolist(), "delta_chi2": self.delta_chi2.tolist(),
+                "interval": list(self.interval), "results": self.results}
+
+
+def _crossing(grid, d, i0, direction):
+    """First v beyond index i0 (moving ``direction``) where d crosses CHI2_95, linearly
+    interpolated; None if it never does."""
+    i = i0
+    while 0 <= i + direction < len(grid):
+        j = i + direction
+        if d[j] > CHI2_95 >= d[i]:
+            t = (CHI2_95 - d[i]) / (d[j] - d[i])
+            return float(grid[i] + t * (grid[j] - grid[i]))
+        i = j
+    return None
+
+
+def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
+                       solver: str = "lm", max_steps: int = 100,
+                       batch_size: int | None = None) -> ProfileLikelihood:
+    """Profile likelihood of parameter ``name`` of ``problem`` around the fit ``params``.
+
+    **Arguments:**
+    - ``grid``: values (SI) at which to hold ``name``; default ``n`` points spanning ±4
+      Gauss–Newton standard errors (clipped to the box), or the whole box when the
+      parameter is not identifiable by the linear analysis.
+    - ``solver``/``max_steps``: the local solver of the constrained re-fits, all started
+      from ``params`` and run as one vmapped batch (or batches of ``batch_size``; the
+      same batch size, solver and ``max_steps`` as an earlier profile or `fit_replicates`
+      of the same problem reuse its compiled program, whichever parameter is profiled).
+    """
+    space = problem.space
+    if name not in space.names:
+        raise ValueError(f"{name!r} is not a free parameter of this problem "
+                         f"(free: {list(space.names)}).")
+    if space.n_free < 2:
+        raise ValueError("A profile needs at least one other free parameter to re-fit.")
+    i_free = space.names.index(name)
+    lo, hi = float(space.lower[i_free]), float(space.upper[i_free])
+    value = float(getattr(params, name))
+    if grid is None:
+        from .identifiability import identifiability
+
+        se = identifiability(problem, params).std_errors[name]
+        a, b = (lo, hi) if se is None or se == 0 else (max(lo, value - 4 * se),
+                                                       min(hi, value + 4 * se))
+        grid = np.unique(np.append(np.linspace(a, b, n), value))
+    grid = np.sort(np.asarray(grid, dtype=float))
+    if grid.ndim != 1 or grid.size < 3:
+        raise ValueError("The profile grid needs at least 3 values.")
+    if grid[0] < lo or grid[-1] > hi:
+        raise ValueError(f"The grid of {name} must lie in its bounds [{lo:g}, {hi:g}].")
+    G = grid.size
+    lowers = np.tile(np.asarray(space.lower), (G, 1))
+    uppers = np.tile(np.asarray(space.upper), (G, 1))
+    lowers[:, i_free] = uppers[:, i_free] = grid  # hold the parameter at each grid value
+    x, _, codes, _, costs = _fit_many(problem, np.broadcast_to(np.asarray(problem.data),
+                                                               (G, problem.data.shape[0])),
+                                      lowers, uppers, params, solver, max_steps,
+                                      batch_size or G)
+    theta = np.asarray(space.params_from_free(jnp.asarray(x)).to_array())
+    N = problem.data.shape[0]
+    E = costs * problem.scale**2 * N
+    best = float(np.sum((np.asarray(problem.predict(params)) - np.asarray(problem.data)) ** 2))
+    E_min = min(best, float(np.nanmin(E)))
+    sigma2 = E_min / max(N - space.n_free, 1)
+    d = (E - E_min) / sigma2 if sigma2 > 0 else np.where(E > E_min, np.inf, 0.0)
+    d = np.where(np.isfinite(d), d, np.inf)
+    i0 = int(np.argmin(d))
+    interval = (_crossing(grid, d, i0, -1), _crossing(grid, d, i0, +1))
+    return ProfileLikelihood(name=name, value=value, grid=grid, cost=costs, delta_chi2=d,
+                             theta=theta, interval=interval,
+                             results=[_result_name(c) for c in np.asarray(codes)])
+
+
+def _gn_std_errors(problem, x):
+    """Gauss–Newton standard errors (SI) of the free parameters at their values x, with
+    σ² = Σe²/(N − n) (full-rank problems)."""
+    scale = jnp.where(x != 0, x, 1.0)
+
+    def out(dx):
+        return problem.predict_free(x + dx * scale)
+
+    J = jax.jacfwd(out)(jnp.zeros_like(x))
+    e = out(jnp.zeros_like(x)) - problem.data
+    N, n = J.shape
+    sigma2 = jnp.sum(e**2) / (N - n)
+    _, s, Vt = jnp.linalg.svd(J, full_matrices=False)
+    var = jnp.sum((Vt / s[:, None]) ** 2, axis=0) * sigma2
+    return jnp.sqrt(var) * jnp.abs(scale)
+
+
+@eqx.filter_jit
+def _fit_batch(problem, solver, datas, lowers, uppers, z0, max_steps):
+    """One vmapped batch of local fits of ``problem`` with per-member data and box
+    (a profile holds a parameter by lower = upper = v, which keeps the free set — and so
+    the compiled program — the same for every profiled parameter and for replicates)."""
+
+    def one(d, lo, hi):
+        p = eqx.tree_at(lambda q: (q.data, q.space.lower, q.space.upper), problem, (d, lo, hi))
+        z, code, steps, cost, _ = _run(p, solver, z0, max_steps)
+        x = p.space.free_values(p.space.params_from_z(z))
+        return x, _gn_std_errors(p, x), code, steps, cost
+
+    return jax.vmap(one)(datas, lowers, uppers)
+
+
+def _fit_many(problem, datas, lowers, uppers, start, solver, max_steps, batch_size,
+              label=None):
+    """`_fit_batch` over any number of members in batches of ``batch_size`` (the last one
+    padded, so that one compiled program serves every batch); NumPy outputs."""
+    z0 = _start_z(problem, start)
+    solver_ = make_solver(solver)
+    R = len(datas)
+    out = [], [], [], [], []
+    t0 = time.perf_counter()
+    for b in range(0, R, batch_size):
+        chunk = [a[b:b + batch_size] for a in (datas, lowers, uppers)]
+        pad = batch_size - len(chunk[0])
+        if pad:
+            chunk = [np.concatenate([a, np.repeat(a[-1:], pad, axis=0)]) for a in chunk]
+        res = _fit_batch(problem, solver_, *(jnp.asarray(a) for a in chunk), z0, max_steps)
+        for acc, r in zip(out, res, strict=True):
+            acc.append(np.asarray(r)[: batch_size - pad])
+        if label:
+            print(f"[{label}] {min(b + batch_size, R)}/{R} fitted, "
+                  f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+    return tuple(np.concatenate(a) for a in out)
+
+
+def fit_replicates(problem, datasets, start, solver: str = "lm", max_steps: int = 100,
+                   batch_size: int = 64, progress: bool = False) -> dict:
+    """Fit each row of ``datasets`` (R × N, same drive and space as ``problem``) from
+    ``start``, in vmapped batches of ``batch_size``.
+
+    Returns a dict of NumPy arrays: ``values`` and ``std_errors`` (R × n_free, SI, in the
+    order of ``problem.space.names``; standard errors assume every free parameter is
+    identifiable), ``cost`` (R,), ``steps`` (R,), ``results`` (names), ``names``."""
+    datasets = np.asarray(datasets, dtype=float)
+    if datasets.ndim != 2 or datasets.shape[1] != problem.data.shape[0]:
+        raise ValueError(f"datasets must have shape (R, {problem.data.shape[0]}); got "
+                         f"{datasets.shape}.")
+    if not np.all(np.isfinite(datasets)):
+        raise ValueError("datasets contain NaN or inf.")
+    R = len(datasets)
+    lowers = np.broadcast_to(np.asarray(problem.space.lower), (R, problem.space.n_free))
+    uppers = np.broadcast_to(np.asarray(problem.space.upper), (R, problem.space.n_free))
+    values, se, codes, steps, cost = _fit_many(
+        problem, datasets, lowers, uppers, start, solver, max_steps, min(batch_size, R),
+        "replicates" if progress else None)
+    return {"names": problem.space.names, "values": values, "std_errors": se, "cost": cost,
+            "steps": steps, "results": [_result_name(c) for c in codes]}
+
+
+def coverage(values, std_errors, truth, level_z: float = Z95) -> np.ndarray:
+    """Fraction of replicates whose interval value ± z·se contains ``truth``, per
+    parameter (``truth``: the free parameters' true values, same order as ``values``)."""
+    values, se, truth = np.asarray(values), np.asarray(std_errors), np.asarray(truth)
+    return np.mean(np.abs(values - truth) <= level_z * se, axis=0)
