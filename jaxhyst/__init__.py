@@ -6,12 +6,13 @@ Importing the package turns on float64 and JAX's persistent compilation cache
 
 from . import _config  # noqa: F401  (x64 + compilation cache, before anything traces)
 from .actuator import ACTUATOR1, ACTUATOR2, Actuator
-from .drive import Drive, sinusoidal_current, sinusoidal_field
+from .drive import Drive, drive_from_record, sinusoidal_current, sinusoidal_field
 from .model import (
     ClassicJA,
     EnergyBasedJA,
     JAVariant,
     Simulation,
+    VenkataramanJA,
     frequency_response,
     langevin,
     langevin_slope,
@@ -35,11 +36,13 @@ __all__ = [
     "Actuator",
     "Bounds",
     "ClassicJA",
+    "VenkataramanJA",
     "Drive",
     "EnergyBasedJA",
     "JAVariant",
     "Parameters",
     "Simulation",
+    "drive_from_record",
     "frequency_response",
     "langevin",
     "langevin_slope",
@@ -54,8 +57,11 @@ __all__ = [
 from .identify import (  # noqa: E402
     GASettings,
     IdentificationResult,
+    JointProblem,
+    JointSpace,
     ParameterSpace,
     Problem,
+    loop_problem,
     multistart,
     run_hybrid,
     solve,
@@ -66,7 +72,10 @@ __all__ += [
     "GASettings",
     "run_hybrid",
     "IdentificationResult",
+    "JointProblem",
+    "JointSpace",
     "ParameterSpace",
+    "loop_problem",
     "Problem",
     "multistart",
     "solve",

@@ -1,77 +1,423 @@
-"""The ``jaxhyst`` command. All quantities are SI: fields in A/m, currents in A,
-displacements in m, times in s, frequencies in Hz."""
+"""The ``jaxhyst`` command.
+
+Units are SI everywhere unless a data file's header says otherwise: field H in A/m,
+current I in A, displacement y in m, magnetization M in A/m, flux density B in T, time t in
+s, frequency in Hz; strain and magnetostriction are dimensionless. Parameters: Ms, a, k in
+A/m; λs, α̃, c dimensionless; E in N/m², Kz in N/m, Mz in kg, Cz in N·s/m.
+
+Errors in the input end the command with exit status 2 and a one-line message on stderr.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import signal
 import sys
+from pathlib import Path
 
-PRESETS = ("table1",)
+UNITS_HELP = ("Units: H A/m, I A, y m, M A/m, B T, t s, f Hz; Ms, a, k A/m; E N/m^2, "
+              "Kz N/m, Mz kg, Cz N*s/m; lambda_s, alpha, c dimensionless.")
+LOCAL = ("lm", "indirect_lm", "dogleg", "lma", "tra")
+HYBRID = ("GATR1", "GALM1", "GATR2", "GALM2", "GA")
+
+
+class CLIError(ValueError):
+    """An input problem reported as one line, exit status 2."""
+
+
+# -- shared resolution of presets and files -----------------------------------------------
+
+
+def _params(spec: str):
+    import jaxhyst as jh
+    from jaxhyst.io import parameters_from_json, read_json
+
+    if spec == "table1":
+        return jh.TABLE1_TRUE
+    if spec.startswith("table3:"):
+        f = spec.split(":", 1)[1]
+        if not f.isdigit() or int(f) not in jh.TABLE3:
+            raise CLIError(f"--params {spec}: Table 3 has frequencies {sorted(jh.TABLE3)} Hz.")
+        return jh.TABLE3[int(f)]
+    if not os.path.exists(spec):
+        raise CLIError(f"--params {spec!r}: not a preset (table1, table3:<Hz>) nor a file.")
+    return parameters_from_json(read_json(spec), f"parameters in {spec}")
+
+
+def _actuator(spec: str):
+    import jaxhyst as jh
+    from jaxhyst.io import read_json
+
+    presets = {"actuator1": jh.ACTUATOR1, "actuator2": jh.ACTUATOR2}
+    if spec.lower() in presets:
+        return presets[spec.lower()]
+    if not os.path.exists(spec):
+        raise CLIError(f"--actuator {spec!r}: not a preset (actuator1, actuator2) nor a JSON "
+                       "file with Ar (m^2), lr (m), n (1/m, optional), Hb (A/m, optional).")
+    d = read_json(spec)
+    unknown = sorted(set(d) - {"Ar", "lr", "n", "Hb", "name"})
+    if unknown or "Ar" not in d or "lr" not in d:
+        raise CLIError(f"actuator file {spec}: needs Ar and lr (n, Hb, name optional); "
+                       f"unknown keys {unknown}.")
+    return jh.Actuator(**{k: (v if k == "name" else (None if v is None else float(v)))
+                          for k, v in d.items()})
+
+
+def _actuator_to_json(a) -> dict:
+    return {"Ar": a.Ar, "lr": a.lr, "n": a.n, "Hb": a.Hb, "name": a.name}
+
+
+def _bounds(spec: str):
+    import jaxhyst as jh
+    from jaxhyst.io import bounds_from_json, read_json
+
+    if spec == "table1":
+        return jh.TABLE1_BOUNDS
+    if not os.path.exists(spec):
+        raise CLIError(f"--bounds {spec!r}: not a preset (table1) nor a JSON file "
+                       "{name: [lower, upper]}.")
+    return bounds_from_json(read_json(spec))
+
+
+def _fixed(items, params) -> dict:
+    from jaxhyst.params import NAMES
+
+    out = {}
+    for item in items or []:
+        for part in item.split(","):
+            name, _, value = part.partition("=")
+            name = name.strip()
+            if name not in NAMES:
+                raise CLIError(f"--fix {part!r}: unknown parameter; names are {list(NAMES)}.")
+            if value:
+                try:
+                    out[name] = float(value)
+                except ValueError:
+                    raise CLIError(f"--fix {part!r}: {value!r} is not a number.") from None
+            elif params is not None:
+                out[name] = float(getattr(params, name))
+            else:
+                raise CLIError(f"--fix {name}: give a value (--fix {name}=VALUE) or --params.")
+    return out
+
+
+def _print(args, summary: dict, text: str) -> None:
+    if getattr(args, "json", False):
+        from jaxhyst.io import _json_safe
+
+        print(json.dumps(_json_safe(summary)))
+    else:
+        print(text)
+
+
+# -- simulate -----------------------------------------------------------------------------
+
+
+def _drive_from_args(args, actuator):
+    import jaxhyst as jh
+    from jaxhyst.io import read_loops
+
+    if args.drive:
+        loops = read_loops(args.drive, args.columns)
+        loop = loops[0]
+        H = loop.H
+        if H is None:
+            if actuator.n is None:
+                raise CLIError(f"{args.drive} gives a current I but {actuator.name} has no n; "
+                               "give the field H instead.")
+            H = actuator.n * loop.I + actuator.Hb
+        return jh.drive_from_record(loop.t, H), f"drive from {args.drive}"
+    if args.field_amplitude is not None:
+        d = jh.sinusoidal_field(args.frequency, args.field_amplitude, args.field_offset,
+                                periods=args.periods,
+                                samples_per_period=args.samples_per_period)
+        return d, (f"H = {args.field_offset:g} + {args.field_amplitude:g} "
+                   f"sin(2π·{args.frequency:g} t) A/m")
+    d = jh.sinusoidal_current(args.frequency, args.amplitude, args.offset, actuator,
+                              periods=args.periods, samples_per_period=args.samples_per_period)
+    return d, f"I = {args.amplitude:.2f} sin(2π·{args.frequency:g} t) + {args.offset:.2f} A"
 
 
 def _simulate(args) -> int:
     import jaxhyst as jh
     from jaxhyst.io import write_simulation_csv
 
-    if args.preset == "table1":
-        params, actuator = jh.TABLE1_TRUE, jh.ACTUATOR1
-        drive = jh.sinusoidal_current(
-            args.frequency, args.amplitude, args.offset, actuator,
-            periods=args.periods, samples_per_period=args.samples_per_period,
-        )  # fmt: skip
-        title = (
-            f"Table 1 actuator, I = {args.amplitude:.2f} sin(2π·{args.frequency:g} t)"
-            f" + {args.offset:.2f} A"
-        )
+    params = _params(args.params or args.preset)
+    actuator = _actuator(args.actuator)
+    drive, what = _drive_from_args(args, actuator)
     sim = jh.simulate(params, actuator, drive, substeps=args.substeps)
     y = sim.observed("y")
     summary = {
-        "preset": args.preset,
-        "samples_observed": int(y.shape[0]),
-        "y_min_m": float(y.min()),
-        "y_max_m": float(y.max()),
-        "M_over_Ms_min": float(sim.observed("M").min() / params.Ms),
+        "params": args.params or args.preset, "actuator": actuator.name, "drive": what,
+        "samples_observed": int(y.shape[0]), "y_min_m": float(y.min()),
+        "y_max_m": float(y.max()), "M_over_Ms_min": float(sim.observed("M").min() / params.Ms),
         "M_over_Ms_max": float(sim.observed("M").max() / params.Ms),
-    }
+    }  # fmt: skip
     if args.csv:
         write_simulation_csv(args.csv, sim)
         summary["csv"] = args.csv
     if args.png:
         from jaxhyst.plots import plot_simulation
 
-        plot_simulation(sim, args.png, title=title)
+        plot_simulation(sim, args.png, title=f"{actuator.name}, {what}")
         summary["png"] = args.png
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        print(f"simulated {summary['samples_observed']} observed samples ({args.preset})")
-        print(f"  y in [{summary['y_min_m'] * 1e6:.3f}, {summary['y_max_m'] * 1e6:.3f}] μm, "
-              f"M/Ms in [{summary['M_over_Ms_min']:.3f}, {summary['M_over_Ms_max']:.3f}]")
-        for key in ("csv", "png"):
-            if key in summary:
-                print(f"  wrote {summary[key]}")
+    text = [f"simulated {summary['samples_observed']} observed samples ({actuator.name}, {what})",
+            f"  y in [{summary['y_min_m'] * 1e6:.3f}, {summary['y_max_m'] * 1e6:.3f}] μm, "
+            f"M/Ms in [{summary['M_over_Ms_min']:.3f}, {summary['M_over_Ms_max']:.3f}]"]
+    text += [f"  wrote {summary[k]}" for k in ("csv", "png") if k in summary]
+    _print(args, summary, "\n".join(text))
     return 0
+
+
+# -- identify -----------------------------------------------------------------------------
+
+
+def build_problem(spec: dict):
+    """A `Problem` from the JSON-able ``spec`` stored with every CLI result (so that
+    ``jaxhyst report`` can rebuild it)."""
+    import jaxhyst as jh
+    from jaxhyst.io import SIGNAL_OUTPUTS, bounds_from_json, read_loops
+
+    loops = read_loops(spec["data"], spec.get("columns"))
+    ids = [lp.index for lp in loops]
+    if spec.get("loop") is None:
+        if len(loops) > 1:
+            raise CLIError(f"{spec['data']} holds loops {ids}; choose one with --loop.")
+        loop = loops[0]
+    else:
+        if spec["loop"] not in ids:
+            raise CLIError(f"--loop {spec['loop']}: {spec['data']} holds loops {ids}.")
+        loop = loops[ids.index(spec["loop"])]
+    signals = [q for q in loop.signals if q in SIGNAL_OUTPUTS]
+    out = spec.get("output")
+    if out is None:
+        if len(signals) != 1:
+            raise CLIError(f"{spec['data']} has signal columns {signals}; choose the observed "
+                           "one with --output (y, strain, lambda, M or B).")
+        out = signals[0]
+    if out not in loop.signals:
+        raise CLIError(f"--output {out}: {spec['data']} has no such column (signals: "
+                       f"{signals}).")
+    actuator = jh.Actuator(**spec["actuator"])
+    H = loop.H
+    if H is None:
+        if actuator.n is None:
+            raise CLIError(f"{spec['data']} gives a current I but the actuator has no turns "
+                           "per metre n; add n to the actuator or give H.")
+        H = actuator.n * loop.I + actuator.Hb
+    if loop.t is None and SIGNAL_OUTPUTS[out] in ("displacement", "strain"):
+        raise CLIError(f"{spec['data']} has no time column t; {out} depends on the structural "
+                       "dynamics, which need times (only M or B loops may omit t).")
+    drive = jh.drive_from_record(loop.t, H, run_in_periods=spec.get("run_in_periods", 1))
+    space = jh.ParameterSpace(bounds_from_json(spec["bounds"]), spec.get("fixed") or None)
+    return jh.Problem(loop.signals[out], drive, actuator, space, output=SIGNAL_OUTPUTS[out],
+                      substeps=spec.get("substeps", 2))
+
+
+def _terminate_as_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _identify(args) -> int:
+    import numpy as np
+
+    import jaxhyst as jh
+    from jaxhyst.io import bounds_to_json, write_json
+
+    known = _params(args.params) if args.params else None
+    bounds = _bounds(args.bounds)
+    actuator = _actuator(args.actuator)
+    spec = {"data": os.path.abspath(args.data), "columns": args.columns, "loop": args.loop,
+            "output": args.output, "actuator": _actuator_to_json(actuator),
+            "bounds": bounds_to_json(bounds), "fixed": _fixed(args.fix, known),
+            "run_in_periods": args.run_in_periods, "substeps": args.substeps}
+    problem = build_problem(spec)
+    n = problem.space.n_free
+    if args.method in HYBRID:
+        settings = jh.GASettings()
+        overrides = {k: v for k, v in (("T2", args.generations), ("q1", args.population),
+                                       ("T3", args.max_steps)) if v is not None}
+        if args.population is not None:
+            overrides["q2"] = max(4, args.population // 4)
+        settings = jh.GASettings(**{**settings.__dict__, **overrides})
+        if args.checkpoint is None and args.resume:
+            raise CLIError("--resume needs --checkpoint FILE.")
+        # SIGTERM (e.g. a job scheduler) is handled like Ctrl-C: checkpoint, then exit
+        signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+        result = jh.run_hybrid(problem, args.method, seed=args.seed, settings=settings,
+                               progress=args.progress, checkpoint=args.checkpoint,
+                               checkpoint_every=args.checkpoint_every, resume=args.resume)
+    elif args.starts <= 1:  # one start, from the centre of the box
+        if args.progress:
+            print(f"[{args.method}] one start at the centre of the box ...", file=sys.stderr,
+                  flush=True)
+        result = jh.solve(problem, np.full(n, 0.5), solver=args.method,
+                          max_steps=args.max_steps or 200)
+    else:
+        starts = np.random.default_rng(args.seed).uniform(0.0, 1.0, (args.starts, n))
+        if args.progress:
+            print(f"[{args.method}] {len(starts)} random starts in one vmapped batch ...",
+                  file=sys.stderr, flush=True)
+        result = jh.multistart(problem, starts, solver=args.method,
+                               max_steps=args.max_steps or 200)
+    d = result.to_dict()
+    d["problem"] = spec
+    if "history" in result.extra:
+        d["history"] = result.extra["history"]
+    if args.out:
+        write_json(args.out, d)
+    if args.png:
+        from jaxhyst.plots import plot_fit, plot_history
+
+        pred = np.asarray(problem.predict(result.params))
+        plot_fit(problem.drive.observed(problem.drive.H), problem.data, pred, problem.output,
+                 args.png, t=problem.drive.observed(problem.drive.t),
+                 title=f"{result.solver}: measured and fitted ({os.path.basename(args.data)})")
+        if "history" in result.extra and result.extra["history"]:
+            hist_png = str(Path(args.png).with_name(Path(args.png).stem + "_history.png"))
+            plot_history(result.extra["history"], problem.space.names, problem.space.lower,
+                         problem.space.upper, hist_png, title=result.solver)
+    text = str(result) + (f"\n  wrote {args.out}" if args.out else "")
+    _print(args, d, text)
+    return 130 if result.result == "interrupted" else 0
+
+
+# -- report -------------------------------------------------------------------------------
+
+
+def _report(args) -> int:
+    from jaxhyst.analysis import identifiability, profile_likelihood
+    from jaxhyst.io import parameters_from_json, read_json
+
+    saved = read_json(args.result)
+    if "problem" not in saved:
+        raise CLIError(f"{args.result} is not a jaxhyst identify result (no 'problem' entry).")
+    problem = build_problem(saved["problem"])
+    params = parameters_from_json(saved, f"parameters in {args.result}")
+    rep = identifiability(problem, params, max_rel_se=args.max_rel_se)
+    summary = {"identifiability": rep.to_dict(), "suggest_fixed": list(rep.suggest_fixed())}
+    text = [str(rep), f"  to make the rest identifiable and determined to "
+                      f"{100 * rep.max_rel_se:g} %: fix {', '.join(rep.suggest_fixed()) or '—'}"]
+    profiles = []
+    for name in args.profile or []:
+        prof = profile_likelihood(problem, params, name, n=args.profile_points)
+        profiles.append(prof.to_dict())
+        text.append(str(prof))
+    summary["profiles"] = profiles
+    if args.png:
+        from jaxhyst.plots import plot_identifiability
+
+        plot_identifiability(rep, args.png, title=os.path.basename(args.result))
+        text.append(f"  wrote {args.png}")
+    _print(args, summary, "\n".join(text))
+    return 0
+
+
+# -- reproduce ----------------------------------------------------------------------------
+
+
+def _reproduce(args) -> int:
+    from jaxhyst.io import atomic_write_text, write_json
+    from jaxhyst.study import METHODS, table1_study
+
+    methods = args.methods.split(",") if args.methods else list(METHODS)
+    bad = [m for m in methods if m not in HYBRID]
+    if bad:
+        raise CLIError(f"--methods {bad}: choose from {list(HYBRID)}.")
+    study = table1_study(quick=args.quick, methods=methods, seeds=tuple(args.seeds),
+                         progress=not args.json)
+    problem = study.pop("problem")
+    out = Path(args.out) if args.out else None
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(out / "table1.json", study)
+        atomic_write_text(out / "table1.md", study["markdown"] + "\n")
+        if args.png:
+            from jaxhyst.plots import plot_history
+
+            for r in study["runs"]:
+                plot_history(r["history"], problem.space.names, problem.space.lower,
+                             problem.space.upper, out / f"{r['method']}_s{r['seed']}.png",
+                             title=f"{r['method']}, seed {r['seed']}")
+    summary = {k: v for k, v in study.items() if k != "runs"}
+    summary["runs"] = [{k: v for k, v in r.items() if k != "history"} for r in study["runs"]]
+    text = study["markdown"] + (f"\n\nwrote {out}/table1.md, table1.json" if out else "")
+    _print(args, summary, text)
+    return 0
+
+
+# -- frequency-response -------------------------------------------------------------------
+
+
+def _frequency_response(args) -> int:
+    import numpy as np
+
+    import jaxhyst as jh
+
+    params = _params(args.params)
+    actuator = _actuator(args.actuator)
+    if args.frequencies:
+        try:
+            f = np.array([float(x) for x in args.frequencies.split(",")])
+        except ValueError:
+            raise CLIError("--frequencies must be comma-separated numbers (Hz).") from None
+    else:
+        if not (0 < args.fmin < args.fmax):
+            raise CLIError("need 0 < --fmin < --fmax (Hz).")
+        f = np.geomspace(args.fmin, args.fmax, args.points)
+    if np.any(~np.isfinite(f)) or np.any(f <= 0):
+        raise CLIError("frequencies must be finite and > 0 Hz.")
+    G = np.asarray(jh.frequency_response(params, actuator, f))
+    rows = [{"frequency_Hz": float(fi), "magnitude": float(abs(g)),
+             "phase_lag_deg": float(-np.degrees(np.angle(g)))} for fi, g in zip(f, G, strict=True)]
+    if args.png:
+        from jaxhyst.plots import plot_frequency_response
+
+        plot_frequency_response(f, G, args.png, title=f"{actuator.name}, eq 13")
+    wn = float(np.sqrt(params.Kz / params.Mz) / (2 * np.pi))
+    text = [f"natural frequency fn = {wn:.1f} Hz, ε/λ at 0 Hz = "
+            f"{actuator.Ar * params.E / actuator.lr / params.Kz:.4g}",
+            f"{'f (Hz)':>12} {'|ε/λ|':>12} {'lag (°)':>10}"]
+    text += [f"{r['frequency_Hz']:>12.5g} {r['magnitude']:>12.5g} {r['phase_lag_deg']:>10.3f}"
+             for r in rows]
+    _print(args, {"natural_frequency_Hz": wn, "response": rows}, "\n".join(text))
+    return 0
+
+
+# -- parser -------------------------------------------------------------------------------
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="jaxhyst",
-        description="Jiles–Atherton hysteresis of magnetostrictive actuators (SI units "
-        "throughout: A/m, A, m, s, Hz).",
+        description="Jiles–Atherton hysteresis of magnetostrictive actuators: simulate, "
+        "identify parameters from measured loops, report what the data determine. "
+        + UNITS_HELP,
     )
     sub = parser.add_subparsers(dest="command", required=True)
+
     sim = sub.add_parser(
-        "simulate",
-        help="simulate an actuator and write its loop (CSV, PNG)",
-        description="Simulate a preset actuator driven by I = offset + amplitude·sin(2πft) "
-        "(amperes). Starts demagnetized, ramps to the drive, discards one run-in period.",
-    )
-    sim.add_argument("--preset", choices=PRESETS, default="table1",
-                     help="parameters + actuator: the paper's Table 1 study (Actuator1)")
+        "simulate", help="simulate an actuator and write its loop (CSV, PNG)",
+        description="Simulate an actuator. The drive is a current I = offset + amplitude·"
+        "sin(2πft) (A) by default, a field with --field-amplitude (A/m), or a measured "
+        "record with --drive FILE (columns t and H or I). Starts demagnetized, ramps to the "
+        "drive, discards one run-in period. " + UNITS_HELP)  # fmt: skip
+    sim.add_argument("--preset", choices=("table1",), default="table1",
+                     help="parameters when --params is not given")
+    sim.add_argument("--params", help="table1, table3:<Hz> or a JSON file {name: value} "
+                     "(a result JSON also works)")
+    sim.add_argument("--actuator", default="actuator1",
+                     help="actuator1, actuator2 or a JSON file {Ar, lr, n, Hb}")
     sim.add_argument("--frequency", type=float, default=100.0, help="drive frequency, Hz")
     sim.add_argument("--amplitude", type=float, default=0.77, help="current amplitude, A")
     sim.add_argument("--offset", type=float, default=1.53, help="current offset (bias), A")
+    sim.add_argument("--field-amplitude", type=float, help="field amplitude, A/m (instead "
+                     "of a current)")
+    sim.add_argument("--field-offset", type=float, default=0.0, help="field offset, A/m")
+    sim.add_argument("--drive", help="CSV/TSV with t and H (or I) columns")
+    sim.add_argument("--columns", help="column names for a file without a header")
     sim.add_argument("--periods", type=float, default=1.0, help="observed periods")
     sim.add_argument("--samples-per-period", type=int, default=200)
     sim.add_argument("--substeps", type=int, default=2, help="RK4 substeps per sample")
@@ -79,6 +425,91 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--png", help="write a figure here (needs matplotlib)")
     sim.add_argument("--json", action="store_true", help="print a JSON summary")
     sim.set_defaults(func=_simulate)
+
+    ide = sub.add_parser(
+        "identify", help="identify parameters from a measured loop",
+        description="Identify the free parameters from a data file (CSV/TSV; columns t, H "
+        "or I, and the observed signal y, strain, lambda, M or B; a 'loop' column separates "
+        "loops; units in the header as 'y [um]' or 'y_um'). " + UNITS_HELP)  # fmt: skip
+    ide.add_argument("data", help="data file")
+    ide.add_argument("--output", choices=("y", "strain", "lambda", "M", "B"),
+                     help="observed column (needed when the file has several)")
+    ide.add_argument("--loop", type=int, help="which loop of a multi-loop file")
+    ide.add_argument("--columns", help="column names for a file without a header, "
+                     "e.g. 't,H,y [um]'")
+    ide.add_argument("--actuator", default="actuator1",
+                     help="actuator1, actuator2 or a JSON file {Ar, lr, n, Hb}")
+    ide.add_argument("--bounds", default="table1",
+                     help="table1 or a JSON file {name: [lower, upper]} (SI)")
+    ide.add_argument("--fix", action="append", help="hold parameters fixed: 'Ms=7.65e5' or "
+                     "'Ms,lambda_s' with --params; repeatable")
+    ide.add_argument("--params", help="known values for --fix without a value")
+    ide.add_argument("--method", default="GATR1", choices=HYBRID + LOCAL,
+                     help="a hybrid GA (paper §3.4) or a local solver (multi-start)")
+    ide.add_argument("--starts", type=int, default=8, help="local solvers: random starts, "
+                     "solved in one vmapped batch (1: one start at the centre of the box)")
+    ide.add_argument("--max-steps", type=int, help="local solver iterations (hybrids: T3)")
+    ide.add_argument("--generations", type=int, help="hybrids: FCGA generations T2 "
+                     "(paper 295)")
+    ide.add_argument("--population", type=int, help="hybrids: BCGA population q1 (paper "
+                     "120; q2 = q1/4)")
+    ide.add_argument("--seed", type=int, default=0)
+    ide.add_argument("--checkpoint", help="hybrids: checkpoint file (.npz), written "
+                     "atomically every --checkpoint-every generations and on Ctrl-C")
+    ide.add_argument("--checkpoint-every", type=int, default=10)
+    ide.add_argument("--resume", action="store_true", help="continue from --checkpoint")
+    ide.add_argument("--run-in-periods", type=int, default=1,
+                     help="copies of the record simulated before it (transient)")
+    ide.add_argument("--substeps", type=int, default=2)
+    ide.add_argument("--progress", type=int, default=10,
+                     help="progress line every N generations on stderr (0: quiet)")
+    ide.add_argument("--out", help="write the result (JSON, names and units) here")
+    ide.add_argument("--png", help="measured vs fitted loop with the error (and, for "
+                     "hybrids, <name>_history.png)")
+    ide.add_argument("--json", action="store_true", help="print the result as JSON")
+    ide.set_defaults(func=_identify)
+
+    rep = sub.add_parser(
+        "report", help="identifiability of an identify result",
+        description="Singular values, null directions, standard errors, identifiable "
+        "combinations and (optionally) profile likelihoods of a result written by "
+        "'jaxhyst identify --out'.")  # fmt: skip
+    rep.add_argument("result", help="result JSON from identify --out")
+    rep.add_argument("--profile", action="append", help="profile likelihood of this "
+                     "parameter (repeatable)")
+    rep.add_argument("--profile-points", type=int, default=21)
+    rep.add_argument("--max-rel-se", type=float, default=0.5,
+                     help="relative standard error above which a parameter is poorly "
+                     "determined")
+    rep.add_argument("--png", help="singular values and correlation matrix figure")
+    rep.add_argument("--json", action="store_true")
+    rep.set_defaults(func=_report)
+
+    rp = sub.add_parser("reproduce", help="reproduce a study of the paper",
+                        description="Reproduce the paper's Table 1 simulation study with the "
+                        "four hybrids (GATR1, GALM1, GATR2, GALM2).")
+    rp.add_argument("study", choices=("table1",))
+    rp.add_argument("--quick", action="store_true", help="small GA, coarse record (about a "
+                    "minute)")
+    rp.add_argument("--seeds", type=int, nargs="+", default=[0])
+    rp.add_argument("--methods", help="comma-separated subset of the hybrids")
+    rp.add_argument("--out", help="directory for table1.md, table1.json (and figures)")
+    rp.add_argument("--png", action="store_true", help="with --out: GA history figures")
+    rp.add_argument("--json", action="store_true")
+    rp.set_defaults(func=_reproduce)
+
+    fr = sub.add_parser("frequency-response", help="structural response ε/λ (eq 13)",
+                        description="Magnitude and phase lag of G(jω) = (Ar·E/lr)/(Mz(jω)² + "
+                        "Cz·jω + Kz). " + UNITS_HELP)
+    fr.add_argument("--params", default="table1", help="table1, table3:<Hz> or a JSON file")
+    fr.add_argument("--actuator", default="actuator1")
+    fr.add_argument("--frequencies", help="comma-separated, Hz")
+    fr.add_argument("--fmin", type=float, default=1.0)
+    fr.add_argument("--fmax", type=float, default=1e4)
+    fr.add_argument("--points", type=int, default=25)
+    fr.add_argument("--png", help="magnitude and phase figure (Fig 8)")
+    fr.add_argument("--json", action="store_true")
+    fr.set_defaults(func=_frequency_response)
     return parser
 
 
@@ -86,8 +517,12 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
+    except KeyboardInterrupt:
+        print(f"jaxhyst {args.command}: interrupted", file=sys.stderr)
+        return 130
     except (ValueError, TypeError, ImportError, OSError) as err:
-        print(f"jaxhyst {args.command}: error: {err}", file=sys.stderr)
+        msg = " ".join(str(err).split())  # one line
+        print(f"jaxhyst {args.command}: error: {msg}", file=sys.stderr)
         return 2
 
 

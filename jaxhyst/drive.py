@@ -33,7 +33,8 @@ class Drive(eqx.Module):
 
     ``dt`` (static) is the common time step when the samples are uniformly spaced (to a
     relative 1e-9), else ``None``; uniform drives let the structural discretization be
-    computed once instead of per interval.
+    computed once instead of per interval. ``detect_uniform=False`` keeps ``dt = None``
+    (drives stacked for a vmap over loops must share this static field).
     """
 
     t: jax.Array
@@ -41,7 +42,8 @@ class Drive(eqx.Module):
     run_in: int = eqx.field(static=True, default=0)
     dt: float | None = eqx.field(static=True, default=None)
 
-    def __init__(self, t, H, run_in: int = 0, dt: float | None = None):
+    def __init__(self, t, H, run_in: int = 0, dt: float | None = None,
+                 detect_uniform: bool = True):
         t = jnp.asarray(t, dtype=jnp.float64)
         H = jnp.asarray(H, dtype=jnp.float64)
         if t.ndim != 1 or H.ndim != 1:
@@ -80,7 +82,7 @@ class Drive(eqx.Module):
                     f"Drive time must be strictly increasing; t[{i + 1}] = {tn[i + 1]} <= "
                     f"t[{i}] = {tn[i]}. Sort the samples or drop duplicates."
                 )
-            if dt is None:
+            if dt is None and detect_uniform:
                 mean = (tn[-1] - tn[0]) / (len(tn) - 1)
                 if np.max(np.abs(steps - mean)) <= 1e-9 * mean:
                     dt = float(mean)
@@ -111,6 +113,47 @@ class Drive(eqx.Module):
             )
         current = jnp.asarray(current, dtype=jnp.float64)
         return cls(t, actuator.n * current + actuator.Hb, run_in=run_in)
+
+
+def drive_from_record(t, H, *, run_in_periods: int = 1, ramp_fraction: float = 0.25) -> Drive:
+    """A `Drive` whose observed part is a measured record H(t) (A/m; t in s, or ``None``
+    for a rate-independent B–H loop given as field samples only).
+
+    The record should span a whole number of periods of a periodic drive (a closed loop).
+    In front of it, as run-in: a linear ramp from H = 0 to H[0] lasting ``ramp_fraction``
+    of the record (the model starts demagnetized and follows its initial curve), then
+    ``run_in_periods`` copies of the record (the transient after the ramp is discarded),
+    with the record's mean time step. If the record is closed (last H within 1e-6 of the
+    range of the first), each copy omits the repeated end point.
+    """
+    H = np.asarray(H, dtype=np.float64)
+    if H.ndim != 1 or H.shape[0] < 4:
+        raise ValueError(f"A record needs at least 4 field samples; got shape {H.shape}.")
+    if not np.all(np.isfinite(H)):
+        bad = np.flatnonzero(~np.isfinite(H))[:5].tolist()
+        raise ValueError(f"The field record contains NaN or inf at samples {bad}.")
+    if t is None:
+        t = np.arange(H.shape[0], dtype=np.float64)  # rate-independent: any time scale
+    t = np.asarray(t, dtype=np.float64)
+    if t.shape != H.shape:
+        raise ValueError(f"t and H of a record differ in length ({t.shape[0]} vs {H.shape[0]}).")
+    steps = np.diff(t)
+    if not np.all(np.isfinite(t)) or np.any(steps <= 0):
+        i = int(np.flatnonzero(~(steps > 0))[0]) if np.any(~(steps > 0)) else 0
+        raise ValueError(f"Time must be finite and strictly increasing; it is not at sample "
+                         f"{i + 1} (t = {t[i + 1]!r} after {t[i]!r}).")
+    dt = float((t[-1] - t[0]) / (t.shape[0] - 1))
+    span = float(np.ptp(H)) or 1.0
+    closed = abs(H[-1] - H[0]) <= 1e-6 * span
+    period_H = H[:-1] if closed else H
+    n_ramp = max(2, int(round(ramp_fraction * H.shape[0]))) if ramp_fraction > 0 else 0
+    pre = [H[0] * np.arange(n_ramp) / n_ramp] if n_ramp else []
+    pre += [period_H] * int(run_in_periods)
+    Hpre = np.concatenate(pre) if pre else np.zeros(0)
+    n_pre = Hpre.shape[0]
+    t_all = np.concatenate([t[0] + dt * np.arange(-n_pre, 0), t])
+    H_all = np.concatenate([Hpre, H])
+    return Drive(t_all, H_all, run_in=n_pre)
 
 
 def sinusoidal_field(

@@ -1,21 +1,225 @@
-"""Files: write simulations as CSV atomically (an interrupted write never leaves a
-half-written file: data go to a temporary file in the same directory, then renamed)."""
+"""Files: measured loops in, simulations and results out.
+
+Reading. `read_loops` reads CSV/TSV/semicolon/whitespace-separated text with a header
+(or without, given ``columns``). A header name is a quantity and optionally a unit:
+``H``, ``H [kA/m]``, ``H (A/m)`` or ``H_A_per_m``; units are converted to SI. Several
+loops in one file are told apart by a ``loop`` column. Every problem is reported as a
+`DataError` whose message names the column, row or loop and the fix.
+
+Writing. Every file is written atomically (temporary file in the same directory, fsync,
+rename), so an interrupted write never leaves a half-written file.
+"""
 
 from __future__ import annotations
 
+import csv
+import json
 import os
+import re
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .model.simulate import Simulation
+from .params import NAMES, Bounds, Parameters
 
 #: Columns written for a simulation, with units (header names carry the unit).
 SIMULATION_COLUMNS = (
     ("t", "t_s"), ("H", "H_A_per_m"), ("M", "M_A_per_m"), ("Man", "Man_A_per_m"),
     ("Mirr", "Mirr_A_per_m"), ("lam", "lambda"), ("y", "y_m"), ("strain", "strain"),
 )  # fmt: skip
+
+_PER_M = {"A/m": 1.0, "A_per_m": 1.0, "kA/m": 1e3, "kA_per_m": 1e3, "Oe": 1e3 / (4 * np.pi)}
+_DIMLESS = {"": 1.0, "1": 1.0, "ppm": 1e-6}
+
+#: Quantities a data file may hold: name → (aliases, description, SI unit, {unit: factor}).
+QUANTITIES = {
+    "loop": ((), "loop index", "", {"": 1.0}),
+    "t": (("time",), "time", "s", {"s": 1.0, "ms": 1e-3, "us": 1e-6, "μs": 1e-6}),
+    "H": (("field",), "applied field", "A/m", _PER_M),
+    "I": (("current",), "coil current", "A", {"A": 1.0, "mA": 1e-3}),
+    "y": (("displacement",), "displacement", "m",
+          {"m": 1.0, "mm": 1e-3, "um": 1e-6, "μm": 1e-6, "nm": 1e-9}),
+    "strain": ((), "strain", "1", _DIMLESS),
+    "lambda": (("magnetostriction", "lam"), "magnetostriction", "1", _DIMLESS),
+    "M": (("magnetization",), "magnetization", "A/m", _PER_M),
+    "Man": ((), "anhysteretic magnetization", "A/m", _PER_M),
+    "Mirr": ((), "irreversible magnetization", "A/m", _PER_M),
+    "B": (("flux_density",), "flux density", "T", {"T": 1.0, "mT": 1e-3}),
+}  # fmt: skip
+
+#: Signal columns → the `Problem` output they observe.
+SIGNAL_OUTPUTS = {"y": "displacement", "strain": "strain", "lambda": "magnetostriction",
+                  "M": "magnetization", "B": "flux_density"}
+
+MIN_SAMPLES = 8
+
+
+class DataError(ValueError):
+    """A data or parameter file cannot be used; the message says why and how to fix it."""
+
+
+@dataclass
+class Loop:
+    """One measured loop, SI units: ``t`` (s) or ``None``, ``H`` (A/m) or ``None``, ``I``
+    (A) or ``None``, and the observed ``signals`` {quantity: samples}."""
+
+    index: int
+    t: np.ndarray | None
+    H: np.ndarray | None
+    I: np.ndarray | None  # noqa: E741
+    signals: dict = field(default_factory=dict)
+
+    @property
+    def n_samples(self) -> int:
+        for a in (self.t, self.H, self.I, *self.signals.values()):
+            if a is not None:
+                return int(a.shape[0])
+        return 0
+
+
+def _known() -> str:
+    return ", ".join(f"{n} [{q[2] or '1'}]" for n, q in QUANTITIES.items())
+
+
+def parse_column(name: str) -> tuple[str, float]:
+    """Quantity and SI factor of a header entry (``H [kA/m]``, ``y_um``, ``B (T)``, ``t``)."""
+    raw = name.strip()
+    m = re.fullmatch(r"(.+?)\s*[\[(]\s*(.*?)\s*[\])]", raw)
+    if m:
+        qname, unit = m.group(1).strip(), m.group(2)
+    else:
+        qname, unit = raw, None
+        if raw not in QUANTITIES and "_" in raw:
+            head, tail = raw.split("_", 1)
+            if _lookup(head) is not None:
+                qname, unit = head, tail
+    q = _lookup(qname)
+    if q is None:
+        raise DataError(f"column {raw!r} is not a known quantity; known columns: {_known()} "
+                        "(rename the column, or give the column names with --columns).")
+    _, desc, si, units = QUANTITIES[q]
+    if unit is None:
+        return q, 1.0
+    if unit not in units:
+        raise DataError(f"column {raw!r}: unit {unit!r} is not a unit of {desc} {q}; use one of "
+                        f"{', '.join(u for u in units if u) or 'none (dimensionless)'}.")
+    return q, units[unit]
+
+
+def _lookup(name: str) -> str | None:
+    if name in QUANTITIES:
+        return name
+    for q, (aliases, *_rest) in QUANTITIES.items():
+        if name.lower() in aliases or name.lower() == q.lower() and q not in ("M", "B", "H"):
+            return q
+    return None
+
+
+def _sniff_delimiter(line: str) -> str | None:
+    for d in ("\t", ";", ","):
+        if d in line:
+            return d
+    return None  # whitespace
+
+
+def _split(line: str, delim: str | None) -> list[str]:
+    if delim is None:
+        return line.split()
+    return [c.strip() for c in next(csv.reader([line], delimiter=delim))]
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
+
+
+def read_loops(path, columns: list[str] | str | None = None) -> list[Loop]:
+    """Read measured loops from a delimited text file (see the module docstring).
+
+    **Arguments:**
+    - ``path``: CSV (``,``), TSV (tab), ``;`` or whitespace separated; lines starting
+      with ``#`` are comments.
+    - ``columns``: column names for a file without a header (``["t", "H", "y [um]"]`` or
+      ``"t,H,y [um]"``), or to override the file's header.
+
+    **Returns:** one `Loop` per value of the ``loop`` column (or one loop). Raises
+    `DataError` for: a missing or empty file, unknown columns, unit mismatches, NaN or
+    non-numeric values, non-increasing time within a loop, fewer than 8 samples in a
+    loop, a file with neither H nor I.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"data file {str(path)!r} does not exist.")
+    lines = [(i + 1, ln.strip()) for i, ln in enumerate(path.read_text(encoding="utf-8-sig")
+                                                       .splitlines())]
+    lines = [(i, ln) for i, ln in lines if ln and not ln.startswith("#")]
+    if not lines:
+        raise DataError(f"data file {str(path)!r} is empty.")
+    delim = _sniff_delimiter(lines[0][1])
+    first = _split(lines[0][1], delim)
+    has_header = not all(_is_number(c) for c in first if c)
+    if isinstance(columns, str):
+        columns = [c for c in re.split(r",(?![^\[(]*[\])])", columns) if c.strip()]
+    if columns is None:
+        if not has_header:
+            raise DataError(f"{path.name} has no header line; name its columns, e.g. "
+                            "--columns 't,H,y' (units in brackets: 'y [um]').")
+        columns = first
+    body = lines[1:] if has_header else lines
+    parsed = [parse_column(c) for c in columns]
+    names = [q for q, _ in parsed]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise DataError(f"{path.name}: quantity {dup} appears in more than one column.")
+    if "H" not in names and "I" not in names:
+        raise DataError(f"{path.name} has neither a field column H [A/m] nor a current column "
+                        "I [A]; the drive must be given.")
+    if len(body) == 0:
+        raise DataError(f"{path.name} has a header but no data rows.")
+    table = np.empty((len(body), len(columns)))
+    for r, (lineno, ln) in enumerate(body):
+        cells = _split(ln, delim)
+        if len(cells) != len(columns):
+            raise DataError(f"{path.name} line {lineno}: {len(cells)} values for "
+                            f"{len(columns)} columns.")
+        for c, cell in enumerate(cells):
+            try:
+                v = float(cell)
+            except ValueError:
+                v = float("nan")
+            if not np.isfinite(v):
+                raise DataError(f"{path.name} line {lineno}, column {columns[c]!r}: value "
+                                f"{cell!r} is not a finite number (NaN, inf, empty or text); "
+                                "remove or repair that row.")
+            table[r, c] = v
+    data = {q: table[:, j] * f for j, (q, f) in enumerate(parsed)}
+    ids = data.pop("loop", np.zeros(len(body)))
+    loops = []
+    for k in dict.fromkeys(ids.tolist()):  # in order of first appearance
+        sel = ids == k
+        cols = {q: a[sel] for q, a in data.items()}
+        n = int(sel.sum())
+        if n < MIN_SAMPLES:
+            raise DataError(f"{path.name}: loop {k:g} has {n} samples; at least {MIN_SAMPLES} "
+                            "are needed to fit a loop.")
+        t = cols.pop("t", None)
+        if t is not None and np.any(np.diff(t) <= 0):
+            i = int(np.flatnonzero(np.diff(t) <= 0)[0])
+            raise DataError(f"{path.name}: time is not increasing in loop {k:g} at sample "
+                            f"{i + 1} (t = {t[i + 1]:g} s after {t[i]:g} s); sort the rows or "
+                            "split the loops with a 'loop' column.")
+        loops.append(Loop(index=int(k), t=t, H=cols.pop("H", None), I=cols.pop("I", None),
+                          signals=cols))
+    return loops
+
+
+# -- writing ------------------------------------------------------------------------------
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
@@ -38,10 +242,83 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
         raise
 
 
+def write_columns_csv(path, columns: dict) -> None:
+    """Write ``{header: 1-D array}`` as CSV (full float64 precision), atomically."""
+    cols = [np.asarray(v, dtype=float) for v in columns.values()]
+    rows = "\n".join(",".join(f"{v:.17g}" for v in row) for row in np.column_stack(cols))
+    atomic_write_text(path, ",".join(columns) + "\n" + rows + "\n")
+
+
 def write_simulation_csv(path, sim: Simulation, observed_only: bool = True) -> None:
     """Write a simulation's signals, one row per sample, SI units in the header names."""
     start = sim.run_in if observed_only else 0
-    cols = [np.asarray(getattr(sim, field))[start:] for field, _ in SIMULATION_COLUMNS]
-    header = ",".join(name for _, name in SIMULATION_COLUMNS)
-    rows = "\n".join(",".join(f"{v:.17g}" for v in row) for row in np.column_stack(cols))
-    atomic_write_text(path, header + "\n" + rows + "\n")
+    write_columns_csv(path, {name: np.asarray(getattr(sim, f))[start:]
+                             for f, name in SIMULATION_COLUMNS})
+
+
+def write_json(path, obj) -> None:
+    """Write ``obj`` as indented JSON, atomically (NaN/inf are written as null)."""
+    atomic_write_text(path, json.dumps(_json_safe(obj), indent=2) + "\n")
+
+
+def _json_safe(obj):
+    if isinstance(obj, dict):
+        return {str(k): _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, (np.ndarray,)):
+        return _json_safe(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj
+
+
+def read_json(path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"file {str(path)!r} does not exist.")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as err:
+        raise DataError(f"{path.name} is not valid JSON ({err.msg} at line {err.lineno}).") \
+            from None
+
+
+# -- parameter, bounds and actuator files ------------------------------------------------
+
+
+def parameters_from_json(obj: dict, what: str = "parameters") -> Parameters:
+    """`Parameters` from ``{name: value}`` or a result's ``{"params": {name: {"value":
+    v}}}``."""
+    if "params" in obj and isinstance(obj["params"], dict):
+        obj = {n: (v["value"] if isinstance(v, dict) else v) for n, v in obj["params"].items()}
+    missing = [n for n in NAMES if n not in obj]
+    unknown = [n for n in obj if n not in NAMES]
+    if missing or unknown:
+        raise DataError(f"{what} need the ten names {list(NAMES)} (SI units); missing "
+                        f"{missing}, unknown {unknown}.")
+    try:
+        return Parameters.from_dict({n: float(obj[n]) for n in NAMES})
+    except (TypeError, ValueError) as err:
+        raise DataError(f"{what}: every value must be a number ({err}).") from None
+
+
+def bounds_from_json(obj: dict) -> Bounds:
+    """`Bounds` from ``{name: [lower, upper]}`` for all ten parameters (SI)."""
+    missing = [n for n in NAMES if n not in obj]
+    unknown = [n for n in obj if n not in NAMES]
+    if missing or unknown:
+        raise DataError(f"bounds need [lower, upper] for each of {list(NAMES)}; missing "
+                        f"{missing}, unknown {unknown}.")
+    try:
+        pairs = {n: (float(obj[n][0]), float(obj[n][1])) for n in NAMES}
+    except (TypeError, ValueError, IndexError):
+        raise DataError("bounds: each entry must be [lower, upper] numbers.") from None
+    return Bounds.from_dict(pairs)
+
+
+def bounds_to_json(bounds: Bounds) -> dict:
+    lo, hi = bounds.lower.to_dict(), bounds.upper.to_dict()
+    return {n: [lo[n], hi[n]] for n in NAMES}

@@ -1,10 +1,23 @@
-"""Figures (matplotlib is an optional dependency: ``pip install jaxhyst[plots]``)."""
+"""Figures (matplotlib is an optional dependency: ``pip install jaxhyst[plots]``).
+
+Every function writes one PNG and closes its figure. Axes carry units; signals are shown
+in engineering units (kA/m, μm, ppm) chosen per quantity.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
 from .model.simulate import Simulation
+
+#: How each observed output is displayed: (label, factor from SI, unit shown).
+DISPLAY = {
+    "displacement": ("y", 1e6, "μm"),
+    "strain": ("ε", 1e6, "ppm"),
+    "magnetostriction": ("λ", 1e6, "ppm"),
+    "magnetization": ("M", 1e-3, "kA/m"),
+    "flux_density": ("B", 1.0, "T"),
+}
 
 
 def _pyplot():
@@ -20,19 +33,131 @@ def _pyplot():
     return plt
 
 
+def _field_axis(H):
+    H = np.asarray(H)
+    return (H / 1e3, "H (kA/m)") if np.max(np.abs(H)) >= 1e3 else (H, "H (A/m)")
+
+
 def plot_simulation(sim: Simulation, path, title: str = "") -> None:
-    """Three loops of the observed part against H (kA/m): M (kA/m), λ (ppm), y (μm)."""
+    """Three loops of the observed part against H: M (kA/m), λ (ppm), y (μm)."""
     plt = _pyplot()
-    H = np.asarray(sim.observed("H")) / 1e3
+    H, hlabel = _field_axis(sim.observed("H"))
     fig, axes = plt.subplots(1, 3, figsize=(13, 4), constrained_layout=True)
     axes[0].plot(H, np.asarray(sim.observed("M")) / 1e3)
-    axes[0].set(xlabel="H (kA/m)", ylabel="M (kA/m)", title="magnetization loop")
+    axes[0].set(xlabel=hlabel, ylabel="M (kA/m)", title="magnetization loop")
     axes[1].plot(H, np.asarray(sim.observed("lam")) * 1e6)
-    axes[1].set(xlabel="H (kA/m)", ylabel="λ (ppm)", title="magnetostriction")
+    axes[1].set(xlabel=hlabel, ylabel="λ (ppm)", title="magnetostriction")
     axes[2].plot(H, np.asarray(sim.observed("y")) * 1e6)
-    axes[2].set(xlabel="H (kA/m)", ylabel="y (μm)", title="displacement loop")
+    axes[2].set(xlabel=hlabel, ylabel="y (μm)", title="displacement loop")
     for ax in axes:
         ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_fit(H, data, model, output: str, path, t=None, title: str = "") -> None:
+    """Measured vs fitted loop against H, with the error below (the paper's Fig 6).
+    ``H`` in A/m, ``data``/``model`` in the output's SI unit, ``t`` in s (or sample index)."""
+    plt = _pyplot()
+    label, f, unit = DISPLAY[output]
+    Hs, hlabel = _field_axis(H)
+    data, model = np.asarray(data) * f, np.asarray(model) * f
+    x = np.arange(len(data)) if t is None else (np.asarray(t) - np.asarray(t)[0]) * 1e3
+    xlabel = "sample" if t is None else "t (ms)"
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 7), height_ratios=[2, 1],
+                                 constrained_layout=True)
+    a1.plot(Hs, data, ".", ms=3, color="0.35", label="measured")
+    a1.plot(Hs, model, "-", lw=1.4, color="C3", label="model")
+    a1.set(xlabel=hlabel, ylabel=f"{label} ({unit})", title=title or "measured and fitted loop")
+    a1.legend()
+    err = model - data
+    a2.plot(x, err, lw=1.0)
+    a2.axhline(0, color="0.6", lw=0.8)
+    rms = float(np.sqrt(np.mean(err**2)))
+    a2.set(xlabel=xlabel, ylabel=f"model − measured ({unit})",
+           title=f"error: rms {rms:.3g} {unit}, max {np.max(np.abs(err)):.3g} {unit}")
+    for ax in (a1, a2):
+        ax.grid(alpha=0.3)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_history(history: list[dict], names, lower, upper, path, title: str = "") -> None:
+    """GA history: best and mean fitness per generation (the paper's Fig 3) and the best
+    individual's parameters, scaled to their search box (Fig 4)."""
+    plt = _pyplot()
+    from .params import NAMES
+
+    g = np.array([h["generation"] for h in history])
+    best = np.array([h["best_fitness"] for h in history])
+    mean = np.array([h["mean_fitness"] for h in history])
+    theta = np.array([h["best_params"] for h in history])
+    idx = [NAMES.index(n) for n in names]
+    lower, upper = np.asarray(lower), np.asarray(upper)
+    u = (theta[:, idx] - lower) / np.where(upper > lower, upper - lower, 1.0)
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(13, 4.5), constrained_layout=True)
+    a1.semilogy(g, best, label="best F")
+    a1.semilogy(g, np.where(mean > 0, mean, np.nan), label="mean F")
+    t1 = next((h["generation"] for h in history if h["phase"] == "FCGA"), None)
+    if t1 is not None:
+        a1.axvline(t1 - 0.5, color="0.6", ls="--", lw=0.8)
+        a1.text(t1, best.min(), " FCGA", color="0.4", va="bottom")
+    a1.set(xlabel="generation", ylabel="fitness F = 1/√(c1 + E)", title="fitness (Fig 3)")
+    a1.legend()
+    for j, n in enumerate(names):
+        a2.plot(g, u[:, j], label=n)
+    a2.set(xlabel="generation", ylabel="position in search box (0 = lower, 1 = upper)",
+           title="best parameters (Fig 4)", ylim=(-0.02, 1.02))
+    a2.legend(ncol=2, fontsize=8)
+    for ax in (a1, a2):
+        ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_frequency_response(freq, G, path, title: str = "") -> None:
+    """Magnitude |ε/λ| and phase lag (degrees) of the structural response (Fig 8)."""
+    plt = _pyplot()
+    freq, G = np.asarray(freq), np.asarray(G)
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True, constrained_layout=True)
+    a1.loglog(freq, np.abs(G))
+    a1.set(ylabel="|ε/λ|", title=title or "structural frequency response (eq 13)")
+    a2.semilogx(freq, -np.degrees(np.unwrap(np.angle(G))))
+    a2.set(xlabel="frequency (Hz)", ylabel="phase lag (°)")
+    for ax in (a1, a2):
+        ax.grid(alpha=0.3, which="both")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_identifiability(report, path, title: str = "") -> None:
+    """Relative singular values of the Jacobian (log scale, null directions marked) and
+    the correlation matrix of the identifiable parameters."""
+    plt = _pyplot()
+    s = np.asarray(report.singular_values)
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4.8), constrained_layout=True)
+    colors = ["C3" if v < 1e-8 else "C0" for v in s]
+    a1.bar(np.arange(1, len(s) + 1), np.maximum(s, 1e-17), color=colors)
+    a1.set_yscale("log")
+    a1.set(xlabel="index", ylabel="σ / σ1", title=f"singular values (rank {report.rank}, "
+           f"red: null)", xticks=np.arange(1, len(s) + 1))
+    a1.grid(alpha=0.3, axis="y")
+    corr = np.asarray(report.correlation, dtype=float)
+    im = a2.imshow(np.ma.masked_invalid(corr), vmin=-1, vmax=1, cmap="RdBu_r")
+    n = len(report.names)
+    a2.set_xticks(range(n), report.names, rotation=60, fontsize=8)
+    a2.set_yticks(range(n), report.names, fontsize=8)
+    for i in range(n):
+        for j in range(n):
+            if np.isfinite(corr[i, j]):
+                a2.text(j, i, f"{corr[i, j]:.2f}", ha="center", va="center", fontsize=6,
+                        color="white" if abs(corr[i, j]) > 0.6 else "black")
+    a2.set_title("correlation (blank: not identifiable)")
+    fig.colorbar(im, ax=a2, shrink=0.8)
     if title:
         fig.suptitle(title)
     fig.savefig(path, dpi=120)

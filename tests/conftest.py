@@ -1,7 +1,33 @@
 import os
+import subprocess
 import sys
+import tempfile
 
 # Tests import the shared problems in tests/helpers.py.
 sys.path.insert(0, os.path.dirname(__file__))
 
 import jaxhyst  # noqa: E402,F401  (float64 on import)
+
+#: Background command-line chains (tests/cli_chains.py): name → (directory, process).
+CLI_CHAINS: dict = {}
+
+
+def pytest_collection_finish(session):
+    """Start the subprocess CLI chains as soon as the tests that check them are selected,
+    so that they run alongside the in-process tests instead of after them."""
+    if not any(item.module.__name__ == "test_cli_subprocess" for item in session.items):
+        return
+    root = tempfile.mkdtemp(prefix="jaxhyst-cli-")
+    script = os.path.join(os.path.dirname(__file__), "cli_chains.py")
+    for chain in ("reproduce", "e2e", "resume"):
+        d = os.path.join(root, chain)
+        os.makedirs(d)
+        CLI_CHAINS[chain] = (d, subprocess.Popen([sys.executable, script, chain, d],
+                                                 stdout=subprocess.DEVNULL,
+                                                 stderr=subprocess.DEVNULL))
+
+
+def pytest_sessionfinish(session, exitstatus):
+    for _, proc in CLI_CHAINS.values():
+        if proc.poll() is None:
+            proc.kill()

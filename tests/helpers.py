@@ -27,8 +27,9 @@ def np_langevin(x):
 
 
 def np_slope(H, M, delta, p, variant="energy"):
-    """dM/dH of the paper's energy-based form (SPEC §1, total chain rule) or the classic
-    1986 form, written from the equations independently of jaxhyst."""
+    """dM/dH of the paper's energy-based form (SPEC §1, total chain rule), the classic
+    1986 form or Venkataraman's bulk form, written from the equations independently of
+    jaxhyst."""
     He = H + p["alpha"] * M
     L, dL = np_langevin(He / p["a"])
     Man, dMan = p["Ms"] * L, p["Ms"] / p["a"] * dL
@@ -44,6 +45,11 @@ def np_slope(H, M, delta, p, variant="energy"):
         suppressed = (delta < 0 and diff > 0) or (delta > 0 and diff < 0)
         irr = 0.0 if suppressed else diff / (delta * k - al * diff)
         return (irr + c * dMan) / (1 + c)
+    if variant == "venkataraman":  # Venkataraman 1999 eq 30, k in A/m
+        diff = Man - M
+        suppressed = (delta < 0 and diff > 0) or (delta > 0 and diff < 0)
+        X = (0.0 if suppressed else diff / (delta * k)) + c * dMan
+        return X / (1 - al * X)
     raise ValueError(variant)
 
 

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import json
 import os
 import stat
 
 import numpy as np
 import pytest
 
+import jaxhyst as jh
 from jaxhyst.cli import main
 from jaxhyst.io import atomic_write_text
 
@@ -41,3 +43,98 @@ def test_atomic_write_leaves_old_file_on_failure_and_normal_permissions(tmp_path
         atomic_write_text(target, None)  # fails mid-write
     assert target.read_text() == "first\n"
     assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]  # no temp file left
+
+
+# -- reading measured loops ------------------------------------------------------------------
+
+
+def _loop_rows(n=20, loops=(0,)):
+    rows = []
+    for k in loops:
+        for i in range(n):
+            t = i * 1e-4
+            rows.append((k, t, 1e3 * np.sin(2 * np.pi * i / (n - 1)), 0.5 + 0.1 * i))
+    return rows
+
+
+def test_read_loops_units_headers_delimiters_and_loop_column(tmp_path):
+    from jaxhyst.io import read_loops
+
+    f = tmp_path / "loops.tsv"
+    f.write_text("# measured\nloop\tt [ms]\tH [kA/m]\ty [um]\n"
+                 + "".join(f"{k}\t{t * 1e3}\t{h / 1e3}\t{y}\n" for k, t, h, y in
+                           _loop_rows(loops=(3, 1))))
+    loops = read_loops(f)
+    assert [lp.index for lp in loops] == [3, 1]
+    lp = loops[0]
+    assert lp.n_samples == 20 and lp.I is None
+    np.testing.assert_allclose(lp.t[1], 1e-4)
+    np.testing.assert_allclose(np.max(lp.H), 1e3 * np.max(np.sin(2 * np.pi * np.arange(20) / 19)))
+    np.testing.assert_allclose(lp.signals["y"][0], 0.5e-6)
+    # headerless, whitespace separated, names given
+    g = tmp_path / "plain.txt"
+    g.write_text("".join(f"{t} {h} {y}\n" for _, t, h, y in _loop_rows()))
+    (lp,) = read_loops(g, columns="t,H,B (mT)")
+    np.testing.assert_allclose(lp.signals["B"][0], 0.5e-3)
+
+
+MALFORMED = {
+    "nan": ("t_s,H_A_per_m,y_m\n" + "".join(f"{t},{h},{'nan' if i == 7 else y}\n" for i, (
+        _, t, h, y) in enumerate(_loop_rows())), "line 9, column 'y_m'"),
+    "time": ("t,H,y\n" + "".join(f"{0.5 if i == 4 else t},{h},{y}\n" for i, (_, t, h, y) in
+                                 enumerate(_loop_rows())), "time is not increasing"),
+    "few": ("t,H,y\n" + "".join(f"{t},{h},{y}\n" for _, t, h, y in _loop_rows(n=5)),
+            "at least 8"),
+    "column": ("t,H,displacment\n" + "".join(f"{t},{h},{y}\n" for _, t, h, y in _loop_rows()),
+               "'displacment' is not a known quantity"),
+    "unit": ("t,H [T],y\n" + "".join(f"{t},{h},{y}\n" for _, t, h, y in _loop_rows()),
+             "unit 'T' is not a unit of applied field"),
+    "header": ("".join(f"{t},{h},{y}\n" for _, t, h, y in _loop_rows()), "no header line"),
+    "text": ("t,H,y\n" + "".join(f"{t},{'abc' if i == 2 else h},{y}\n" for i, (_, t, h, y) in
+                                 enumerate(_loop_rows())), "'abc' is not a finite number"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MALFORMED))
+def test_malformed_data_exits_nonzero_with_one_line_naming_the_problem(case, tmp_path, capsys):
+    text, expect = MALFORMED[case]
+    f = tmp_path / f"{case}.csv"
+    f.write_text(text)
+    assert main(["identify", str(f), "--method", "lm"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "Traceback" not in err, err
+    assert expect in err, err
+
+
+def test_other_bad_arguments_are_one_line_errors(tmp_path, capsys):
+    f = tmp_path / "ok.csv"
+    f.write_text("t,H,y,M\n" + "".join(f"{t},{h},{y},{y}\n" for _, t, h, y in _loop_rows()))
+    bad = tmp_path / "bounds.json"
+    bad.write_text('{"Ms": [1, 2]}')
+    cases = [
+        (["identify", str(tmp_path / "missing.csv")], "does not exist"),
+        (["identify", str(f)], "choose the observed one with --output"),
+        (["identify", str(f), "--output", "y", "--fix", "Mass=1"], "unknown parameter"),
+        (["identify", str(f), "--output", "y", "--bounds", str(bad)], "missing"),
+        (["identify", str(f), "--output", "y", "--actuator", "nope"], "not a preset"),
+        (["simulate", "--params", "table3:7"], "Table 3 has frequencies"),
+        (["frequency-response", "--frequencies", "10,-1"], "> 0 Hz"),
+    ]
+    for argv, expect in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and expect in err, (argv, err)
+
+
+def test_frequency_response_and_result_json_round_trip(tmp_path, capsys):
+    from jaxhyst.io import parameters_from_json, read_json, write_json
+
+    assert main(["frequency-response", "--params", "table3:10", "--frequencies",
+                 "10,1000", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    lag = [r["phase_lag_deg"] for r in out["response"]]
+    assert 0.2 < lag[0] < 0.35 and 60 < lag[1] < 75  # Cz·ω/Kz at 10 Hz; near resonance
+    path = tmp_path / "p.json"
+    write_json(path, {"params": {n: {"value": v, "unit": "x"}
+                                 for n, v in jh.TABLE1_TRUE.to_dict().items()}})
+    assert parameters_from_json(read_json(path)).to_dict() == jh.TABLE1_TRUE.to_dict()

@@ -1,6 +1,7 @@
 """Identification: problems, local solvers (Optimistix + the paper's LMA/TRA), results."""
 
 from .hybrid import HYBRIDS, GASettings, HybridGA, run_hybrid
+from .joint import JointProblem, JointSpace, loop_problem
 from .local import SOLVERS, make_solver, multistart, solve
 from .paper_solvers import (
     MultiplicativeDamping,
@@ -18,6 +19,9 @@ __all__ = [
     "OUTPUTS",
     "SOLVERS",
     "IdentificationResult",
+    "JointProblem",
+    "JointSpace",
+    "loop_problem",
     "MultiplicativeDamping",
     "PaperLMA",
     "PaperTRA",

@@ -25,7 +25,7 @@ import numpy as np
 import optimistix as optx
 
 from .paper_solvers import PaperLMA, PaperTRA
-from .problem import Problem, z_from_u
+from .problem import Problem, u_from_z, z_from_u
 from .result import IdentificationResult
 
 SOLVERS = ("lm", "indirect_lm", "dogleg", "lma", "tra")
@@ -92,6 +92,13 @@ def _start_z(problem: Problem, start) -> jax.Array:
     return z_from_u(u)
 
 
+def _free_dict(problem, z) -> dict:
+    """{free name: SI value} at solver coordinate z."""
+    sp = problem.space
+    x = np.asarray(sp.lower + (sp.upper - sp.lower) * u_from_z(z))
+    return {n: float(v) for n, v in zip(sp.names, x, strict=True)}
+
+
 def summarize(problem: Problem, z, steps, code, solver_name: str, wall: float,
               extra: dict | None = None, report: bool = True) -> IdentificationResult:
     """Build an `IdentificationResult` at the solver coordinate ``z``, with the
@@ -99,7 +106,8 @@ def summarize(problem: Problem, z, steps, code, solver_name: str, wall: float,
     params = problem.space.params_from_z(z)
     pred = problem.predict(params)
     e = np.asarray(pred - problem.data)
-    cost = float(np.sum(e**2) / (problem.scale**2 * e.shape[0]))  # Σr², as in residuals
+    w = np.asarray(problem.sample_scale)
+    cost = float(np.sum((e / w) ** 2) / e.shape[0])  # Σr², as in residuals
     result = IdentificationResult(
         params=params, free=problem.space.names, cost=cost, objective=float(np.sum(e**2)),
         rms_error=float(np.sqrt(np.mean(e**2))), max_abs_error=float(np.max(np.abs(e))),
@@ -150,7 +158,7 @@ def multistart(problem: Problem, starts, solver: str = "lm", max_steps: int = 20
     best = int(np.argmin(ranked))
     table = [
         {"cost": float(costs[i]), "result": _result_name(codes[i]), "steps": int(steps[i]),
-         "params": problem.space.params_from_z(zs[i]).to_dict()}
+         "params": _free_dict(problem, zs[i])}
         for i in range(len(costs))
     ]  # fmt: skip
     return summarize(problem, zs[best], steps[best], codes[best], f"{solver} x{len(costs)}",

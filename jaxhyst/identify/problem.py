@@ -147,9 +147,9 @@ class ParameterSpace(eqx.Module):
 
 
 def _reverses_both_ways(H) -> bool:
+    """True if the field both rises and falls (a loop starting at a tip counts)."""
     dH = np.diff(np.asarray(H))
-    s = np.sign(dH[dH != 0])
-    return int(np.sum(s[1:] != s[:-1])) >= 2
+    return bool(np.any(dH > 0) and np.any(dH < 0))
 
 
 class Problem(eqx.Module):
@@ -232,6 +232,11 @@ class Problem(eqx.Module):
     def unit(self) -> str:
         """Unit of the observed output."""
         return OUTPUTS[self.output][0]
+
+    @property
+    def sample_scale(self) -> float:
+        """Normalisation of each residual (max|data|; per loop in a `JointProblem`)."""
+        return self.scale
 
     def with_fixed(self, fixed: dict[str, float]) -> Problem:
         """The same problem with the parameters in ``fixed`` ({name: SI value}) held fixed:

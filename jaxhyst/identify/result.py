@@ -45,10 +45,22 @@ class IdentificationResult:
     def success(self) -> bool:
         return self.result in ("successful", "max_steps_reached") and np.isfinite(self.cost)
 
+    @property
+    def n_loops(self) -> int | None:
+        """Number of loops of a joint identification (parameters with leaves (L,))."""
+        return None if np.ndim(self.params.Ms) == 0 else int(np.shape(self.params.Ms)[0])
+
+    def _value(self, n):
+        v = np.asarray(getattr(self.params, n), dtype=float)
+        return float(v) if v.ndim == 0 else v.tolist()
+
+    def _is_free(self, n) -> bool:
+        return n in self.free or any(f.startswith(n + "[") for f in self.free)
+
     def to_dict(self) -> dict:
         return {
-            "params": {n: {"value": float(getattr(self.params, n)), "unit": UNITS[n],
-                           "free": n in self.free} for n in NAMES},
+            "params": {n: {"value": self._value(n), "unit": UNITS[n],
+                           "free": self._is_free(n)} for n in NAMES},
             "cost": self.cost, "objective": self.objective, "rms_error": self.rms_error,
             "max_abs_error": self.max_abs_error, "steps": self.steps, "result": self.result,
             "solver": self.solver, "wall_time_s": self.wall_time, "output": self.output,
@@ -65,8 +77,15 @@ class IdentificationResult:
             f"({self.output})",
         ]
         for n in NAMES:
-            mark = "" if n in self.free else "  (fixed)"
-            lines.append(f"  {n:<9}= {float(getattr(self.params, n)):>13.6g} {UNITS[n]}{mark}")
+            mark = "" if self._is_free(n) else "  (fixed)"
+            v = self._value(n)
+            if isinstance(v, list):
+                shared = n in self.free or not self._is_free(n)
+                text = f"{v[0]:>13.6g}" if shared else "  ".join(f"{x:.6g}" for x in v)
+                mark = mark or ("  (shared)" if shared else "  (per loop)")
+            else:
+                text = f"{v:>13.6g}"
+            lines.append(f"  {n:<9}= {text} {UNITS[n]}{mark}")
         if self.report is not None:
             lines.append(str(self.report))
         elif self.report_error:

@@ -93,6 +93,11 @@ class ClassicJA(JAVariant):
     (1986) 48; in this closed form e.g. Jiles, Thoelke & Devine, IEEE Trans. Magn. 28
     (1992) 27). Man' = dMan/dHe with no feedback through He, as in those papers. From
     M = Mirr + c·(Man − M): Mirr = (1 + c)·M − c·Man.
+
+    This is also the "dMan/dHe" form of Szewczyk et al. (R. Szewczyk, Materials 7 (2014)
+    5109; the JAmodel toolbox, whose fits to the MnZn loops in ``shared/data`` use it):
+    the same equation, term by term. Unlike the energy-based form, c = 1 still leaves a
+    hysteretic (irreversible) part.
     """
 
     def slope(self, H, M, delta, p: Parameters, pinning=True):
@@ -106,3 +111,26 @@ class ClassicJA(JAVariant):
     def irreversible_magnetization(self, H, M, p: Parameters):
         Man, _ = anhysteretic(H, M, p)
         return (1.0 + p.c) * M - p.c * Man
+
+
+class VenkataramanJA(JAVariant):
+    """The bulk ferromagnetic form of Venkataraman (PhD thesis, University of Maryland,
+    1999, eq 30), which COMSOL Multiphysics and Altair Flux implement. Irreversible change
+    is driven by the effective field, dMirr/dHe = δM·(Man − Mirr)/(δ·k), with
+    M = c·Man + (1 − c)·Mirr and He = H + α̃·M, so that
+
+        dM/dH = X / (1 − α̃·X),   X = δM·(Man − M)/(δ·k) + c·Man',
+
+    (Man − Mirr = (Man − M)/(1 − c)). k is in A/m here; the thesis and COMSOL write k/μ0
+    with k in J/m³ (multiply our k by μ0 to move parameters across). δM as in the other
+    forms. Where 1 − α̃X ≤ 0 (an α̃ so large that the mean field runs away) the slope is
+    not defined; the simulation then returns non-finite values, which identification
+    treats as a failed individual.
+    """
+
+    def slope(self, H, M, delta, p: Parameters, pinning=True):
+        Man, dMan = anhysteretic(H, M, p)
+        D = Man - M
+        active = (delta * D > 0) & pinning
+        X = jnp.where(active, D / (delta * p.k), 0.0) + p.c * dMan
+        return X / (1.0 - p.alpha * X)

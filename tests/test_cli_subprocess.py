@@ -1,0 +1,74 @@
+"""The installed ``jaxhyst`` command end to end, in subprocesses (issue 6). The chains
+themselves are in cli_chains.py and start in the background at collection (conftest.py);
+these tests wait for them and check what they left behind."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+from conftest import CLI_CHAINS
+
+import jaxhyst as jh
+
+TIMEOUT = 900  # s, per chain
+
+
+def _finished(chain):
+    if chain not in CLI_CHAINS:
+        pytest.skip("chain not started (conftest.pytest_collection_finish)")
+    d, proc = CLI_CHAINS[chain]
+    proc.wait(timeout=TIMEOUT)
+    with open(os.path.join(d, "status.json")) as fh:
+        return d, json.load(fh)
+
+
+def _log(d, name):
+    with open(os.path.join(d, name)) as fh:
+        return fh.read()
+
+
+def test_simulate_csv_identify_json_recovers_the_parameters():
+    d, status = _finished("e2e")
+    assert status["simulate"] == 0, _log(d, "sim.log")
+    assert status["identify"] == 0, _log(d, "identify.log")
+    with open(os.path.join(d, "result.json")) as fh:
+        res = json.load(fh)
+    truth = jh.TABLE1_TRUE.to_dict()
+    for n in ("a", "k", "alpha", "c", "E", "Kz", "Cz"):
+        assert res["params"][n]["free"]
+        assert abs(res["params"][n]["value"] / truth[n] - 1) < 1e-6, (n, res["params"][n])
+    for n in ("Ms", "lambda_s", "Mz"):
+        assert not res["params"][n]["free"] and res["params"][n]["value"] == truth[n]
+    assert res["params"]["E"]["unit"] == "N/m^2"
+    assert res["identifiability"]["rank"] == 7
+    assert res["problem"]["output"] == "y"
+
+
+def test_identify_killed_midway_resumes_from_its_checkpoint():
+    d, status = _finished("resume")
+    assert status["killed"], "the run finished before its first checkpoint"
+    assert status["first"] != 0  # SIGKILL
+    assert status["second"] == 0, _log(d, "second.log")
+    with open(os.path.join(d, "result.json")) as fh:
+        res = json.load(fh)
+    assert len(res["history"]) == 5 + 400  # T1 + T2 generations, none lost or repeated
+    gens = [h["generation"] for h in res["history"]]
+    assert gens == list(range(1, 406))
+    second = _log(d, "second.log")
+    assert "generation 1/" not in second  # it continued, not restarted
+    assert np.isfinite(res["cost"])
+
+
+def test_reproduce_table1_quick_runs():
+    d, status = _finished("reproduce")
+    assert status["reproduce"] == 0, _log(d, "reproduce.log")
+    with open(os.path.join(d, "table1.json")) as fh:
+        study = json.load(fh)
+    assert [r["method"] for r in study["runs"]] == ["GATR1", "GALM1", "GATR2", "GALM2"]
+    for r in study["runs"]:
+        assert r["cost"] < 1e-12 and r["combination_error"] < 1e-4, r["method"]
+    assert "| Ms |" in open(os.path.join(d, "table1.md")).read()
+    print(f"reproduce table1 --quick: {status['seconds']:.0f} s")
