@@ -20,6 +20,14 @@ from pathlib import Path
 UNITS_HELP = ("Units: H A/m, I A, y m, M A/m, B T, t s, f Hz; Ms, a, k A/m; E N/m^2, "
               "Kz N/m, Mz kg, Cz N*s/m; lambda_s, alpha, c dimensionless.")
 LOCAL = ("lm", "indirect_lm", "dogleg", "lma", "tra")
+VARIANTS = ("energy", "classic", "venkataraman")
+
+
+def _variant(name: str):
+    import jaxhyst as jh
+
+    return {"energy": jh.EnergyBasedJA(), "classic": jh.ClassicJA(),
+            "venkataraman": jh.VenkataramanJA()}[name]
 HYBRID = ("GATR1", "GALM1", "GATR2", "GALM2", "GA")
 
 
@@ -147,7 +155,8 @@ def _simulate(args) -> int:
     params = _params(args.params or args.preset)
     actuator = _actuator(args.actuator)
     drive, what = _drive_from_args(args, actuator)
-    sim = jh.simulate(params, actuator, drive, substeps=args.substeps)
+    sim = jh.simulate(params, actuator, drive, variant=_variant(args.variant),
+                      substeps=args.substeps)
     y = sim.observed("y")
     summary = {
         "params": args.params or args.preset, "actuator": actuator.name, "drive": what,
@@ -174,24 +183,10 @@ def _simulate(args) -> int:
 # -- identify -----------------------------------------------------------------------------
 
 
-def build_problem(spec: dict):
-    """A `Problem` from the JSON-able ``spec`` stored with every CLI result (so that
-    ``jaxhyst report`` can rebuild it)."""
-    import jaxhyst as jh
-    from jaxhyst.io import SIGNAL_OUTPUTS, bounds_from_json, read_loops
+def _loop_signal(spec, loop, out):
+    from jaxhyst.io import SIGNAL_OUTPUTS
 
-    loops = read_loops(spec["data"], spec.get("columns"))
-    ids = [lp.index for lp in loops]
-    if spec.get("loop") is None:
-        if len(loops) > 1:
-            raise CLIError(f"{spec['data']} holds loops {ids}; choose one with --loop.")
-        loop = loops[0]
-    else:
-        if spec["loop"] not in ids:
-            raise CLIError(f"--loop {spec['loop']}: {spec['data']} holds loops {ids}.")
-        loop = loops[ids.index(spec["loop"])]
     signals = [q for q in loop.signals if q in SIGNAL_OUTPUTS]
-    out = spec.get("output")
     if out is None:
         if len(signals) != 1:
             raise CLIError(f"{spec['data']} has signal columns {signals}; choose the observed "
@@ -200,7 +195,13 @@ def build_problem(spec: dict):
     if out not in loop.signals:
         raise CLIError(f"--output {out}: {spec['data']} has no such column (signals: "
                        f"{signals}).")
-    actuator = jh.Actuator(**spec["actuator"])
+    return out
+
+
+def _loop_drive(spec, loop, out, actuator):
+    import jaxhyst as jh
+    from jaxhyst.io import SIGNAL_OUTPUTS
+
     H = loop.H
     if H is None:
         if actuator.n is None:
@@ -210,9 +211,51 @@ def build_problem(spec: dict):
     if loop.t is None and SIGNAL_OUTPUTS[out] in ("displacement", "strain"):
         raise CLIError(f"{spec['data']} has no time column t; {out} depends on the structural "
                        "dynamics, which need times (only M or B loops may omit t).")
-    drive = jh.drive_from_record(loop.t, H, run_in_periods=spec.get("run_in_periods", 1))
-    space = jh.ParameterSpace(bounds_from_json(spec["bounds"]), spec.get("fixed") or None)
-    return jh.Problem(loop.signals[out], drive, actuator, space, output=SIGNAL_OUTPUTS[out],
+    return jh.drive_from_record(loop.t, H, run_in_periods=spec.get("run_in_periods", 1))
+
+
+def build_problem(spec: dict):
+    """A `Problem` (or `JointProblem` when ``spec["joint"]``) from the JSON-able ``spec``
+    stored with every CLI result (so that ``jaxhyst report`` can rebuild it)."""
+    import jaxhyst as jh
+    from jaxhyst.identify.joint import STRUCTURAL
+    from jaxhyst.io import SIGNAL_OUTPUTS, bounds_from_json, read_loops
+
+    loops = read_loops(spec["data"], spec.get("columns"))
+    ids = [lp.index for lp in loops]
+    bounds = bounds_from_json(spec["bounds"])
+    actuator = jh.Actuator(**spec["actuator"])
+    variant = _variant(spec.get("variant", "energy"))
+    fixed = dict(spec.get("fixed") or {})
+    if spec.get("joint"):
+        out = _loop_signal(spec, loops[0], spec.get("output"))
+        if SIGNAL_OUTPUTS[out] in ("magnetization", "flux_density"):
+            lo, hi = bounds.lower.to_dict(), bounds.upper.to_dict()
+            for n in STRUCTURAL:  # they never affect M or B
+                fixed.setdefault(n, 0.5 * (lo[n] + hi[n]))
+        space = jh.JointSpace(bounds, len(loops), per_loop=spec.get("per_loop") or (),
+                              fixed=fixed)
+        return jh.JointProblem([lp.signals[out] for lp in loops],
+                               [_loop_drive(spec, lp, out, actuator) for lp in loops],
+                               actuator, space, output=SIGNAL_OUTPUTS[out], variant=variant,
+                               substeps=spec.get("substeps", 2))
+    if spec.get("loop") is None:
+        if len(loops) > 1:
+            raise CLIError(f"{spec['data']} holds loops {ids}; choose one with --loop, or fit "
+                           "them together with --joint.")
+        loop = loops[0]
+    else:
+        if spec["loop"] not in ids:
+            raise CLIError(f"--loop {spec['loop']}: {spec['data']} holds loops {ids}.")
+        loop = loops[ids.index(spec["loop"])]
+    out = _loop_signal(spec, loop, spec.get("output"))
+    if SIGNAL_OUTPUTS[out] in ("magnetization", "flux_density"):
+        lo, hi = bounds.lower.to_dict(), bounds.upper.to_dict()
+        for n in STRUCTURAL:
+            fixed.setdefault(n, 0.5 * (lo[n] + hi[n]))
+    space = jh.ParameterSpace(bounds, fixed or None)
+    return jh.Problem(loop.signals[out], _loop_drive(spec, loop, out, actuator), actuator,
+                      space, output=SIGNAL_OUTPUTS[out], variant=variant,
                       substeps=spec.get("substeps", 2))
 
 
@@ -232,7 +275,11 @@ def _identify(args) -> int:
     spec = {"data": os.path.abspath(args.data), "columns": args.columns, "loop": args.loop,
             "output": args.output, "actuator": _actuator_to_json(actuator),
             "bounds": bounds_to_json(bounds), "fixed": _fixed(args.fix, known),
-            "run_in_periods": args.run_in_periods, "substeps": args.substeps}
+            "run_in_periods": args.run_in_periods, "substeps": args.substeps,
+            "variant": args.variant, "joint": args.joint,
+            "per_loop": [n.strip() for n in (args.per_loop or "").split(",") if n.strip()]}
+    if spec["per_loop"] and not args.joint:
+        raise CLIError("--per-loop needs --joint (several loops fitted together).")
     problem = build_problem(spec)
     n = problem.space.n_free
     if args.method in HYBRID:
@@ -268,7 +315,17 @@ def _identify(args) -> int:
         d["history"] = result.extra["history"]
     if args.out:
         write_json(args.out, d)
-    if args.png:
+    if args.png and args.joint:
+        from jaxhyst.plots import plot_fit
+
+        pred = np.asarray(problem.predict_loops(result.params))
+        mask = np.asarray(problem.mask)
+        H = np.asarray(problem.drive.H)[:, problem.drive.run_in:]
+        plot_fit([H[i][mask[i]] for i in range(problem.n_loops)],
+                 [np.asarray(problem.padded)[i][mask[i]] for i in range(problem.n_loops)],
+                 [pred[i][mask[i]] for i in range(problem.n_loops)], problem.output, args.png,
+                 title=f"{result.solver}: {problem.n_loops} loops fitted jointly")
+    elif args.png:
         from jaxhyst.plots import plot_fit, plot_history
 
         pred = np.asarray(problem.predict(result.params))
@@ -375,7 +432,12 @@ def _frequency_response(args) -> int:
     if args.png:
         from jaxhyst.plots import plot_frequency_response
 
-        plot_frequency_response(f, G, args.png, title=f"{actuator.name}, eq 13")
+        lo, hi = (f.min() / 2, f.max() * 2) if args.frequencies else (f.min(), f.max())
+        dense = np.geomspace(lo, hi, 400)
+        plot_frequency_response(dense, np.asarray(jh.frequency_response(params, actuator,
+                                                                        dense)),
+                                args.png, title=f"{actuator.name}, eq 13",
+                                marks=(f, G) if args.frequencies else None)
     wn = float(np.sqrt(params.Kz / params.Mz) / (2 * np.pi))
     text = [f"natural frequency fn = {wn:.1f} Hz, ε/λ at 0 Hz = "
             f"{actuator.Ar * params.E / actuator.lr / params.Kz:.4g}",
@@ -421,6 +483,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--periods", type=float, default=1.0, help="observed periods")
     sim.add_argument("--samples-per-period", type=int, default=200)
     sim.add_argument("--substeps", type=int, default=2, help="RK4 substeps per sample")
+    sim.add_argument("--variant", choices=VARIANTS, default="energy",
+                     help="Jiles–Atherton form (energy: the paper's)")
     sim.add_argument("--csv", help="write the signals here (SI units in the header)")
     sim.add_argument("--png", help="write a figure here (needs matplotlib)")
     sim.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -435,6 +499,12 @@ def build_parser() -> argparse.ArgumentParser:
     ide.add_argument("--output", choices=("y", "strain", "lambda", "M", "B"),
                      help="observed column (needed when the file has several)")
     ide.add_argument("--loop", type=int, help="which loop of a multi-loop file")
+    ide.add_argument("--joint", action="store_true", help="fit all loops of the file as one "
+                     "problem (parameters shared unless listed in --per-loop)")
+    ide.add_argument("--per-loop", help="with --joint: parameters free per loop, e.g. "
+                     "'a,k,c'")
+    ide.add_argument("--variant", choices=VARIANTS, default="energy",
+                     help="Jiles–Atherton form (energy: the paper's)")
     ide.add_argument("--columns", help="column names for a file without a header, "
                      "e.g. 't,H,y [um]'")
     ide.add_argument("--actuator", default="actuator1",
@@ -520,6 +590,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"jaxhyst {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # output piped into e.g. `head`: not an error of the input
+        sys.stderr.close()
+        return 0
     except (ValueError, TypeError, ImportError, OSError) as err:
         msg = " ".join(str(err).split())  # one line
         print(f"jaxhyst {args.command}: error: {msg}", file=sys.stderr)

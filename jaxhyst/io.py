@@ -300,7 +300,12 @@ def parameters_from_json(obj: dict, what: str = "parameters") -> Parameters:
         raise DataError(f"{what} need the ten names {list(NAMES)} (SI units); missing "
                         f"{missing}, unknown {unknown}.")
     try:
-        return Parameters.from_dict({n: float(obj[n]) for n in NAMES})
+        vals = {n: np.asarray(obj[n], dtype=float) for n in NAMES}
+        if all(v.ndim == 0 for v in vals.values()):
+            return Parameters.from_dict({n: float(v) for n, v in vals.items()})
+        L = max(v.size for v in vals.values())  # a joint result: values per loop
+        return Parameters.from_array(np.stack([np.broadcast_to(vals[n], (L,))
+                                               for n in NAMES], axis=-1))
     except (TypeError, ValueError) as err:
         raise DataError(f"{what}: every value must be a number ({err}).") from None
 

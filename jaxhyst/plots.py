@@ -57,13 +57,24 @@ def plot_simulation(sim: Simulation, path, title: str = "") -> None:
     plt.close(fig)
 
 
+def _join(parts):
+    """Concatenate per-loop arrays with a NaN between loops (breaks the plotted line)."""
+    if isinstance(parts, (list, tuple)):
+        out = []
+        for p in parts:
+            out += [np.asarray(p, dtype=float), [np.nan]]
+        return np.concatenate(out[:-1])
+    return np.asarray(parts, dtype=float)
+
+
 def plot_fit(H, data, model, output: str, path, t=None, title: str = "") -> None:
     """Measured vs fitted loop against H, with the error below (the paper's Fig 6).
-    ``H`` in A/m, ``data``/``model`` in the output's SI unit, ``t`` in s (or sample index)."""
+    ``H`` in A/m, ``data``/``model`` in the output's SI unit, ``t`` in s (or sample index);
+    each may be a list with one array per loop (a joint fit)."""
     plt = _pyplot()
     label, f, unit = DISPLAY[output]
-    Hs, hlabel = _field_axis(H)
-    data, model = np.asarray(data) * f, np.asarray(model) * f
+    Hs, hlabel = _field_axis(_join(H))
+    data, model = _join(data) * f, _join(model) * f
     x = np.arange(len(data)) if t is None else (np.asarray(t) - np.asarray(t)[0]) * 1e3
     xlabel = "sample" if t is None else "t (ms)"
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 7), height_ratios=[2, 1],
@@ -75,9 +86,9 @@ def plot_fit(H, data, model, output: str, path, t=None, title: str = "") -> None
     err = model - data
     a2.plot(x, err, lw=1.0)
     a2.axhline(0, color="0.6", lw=0.8)
-    rms = float(np.sqrt(np.mean(err**2)))
+    rms = float(np.sqrt(np.nanmean(err**2)))
     a2.set(xlabel=xlabel, ylabel=f"model − measured ({unit})",
-           title=f"error: rms {rms:.3g} {unit}, max {np.max(np.abs(err)):.3g} {unit}")
+           title=f"error: rms {rms:.3g} {unit}, max {np.nanmax(np.abs(err)):.3g} {unit}")
     for ax in (a1, a2):
         ax.grid(alpha=0.3)
     fig.savefig(path, dpi=120)
@@ -119,14 +130,24 @@ def plot_history(history: list[dict], names, lower, upper, path, title: str = ""
     plt.close(fig)
 
 
-def plot_frequency_response(freq, G, path, title: str = "") -> None:
-    """Magnitude |ε/λ| and phase lag (degrees) of the structural response (Fig 8)."""
+def plot_frequency_response(freq, G, path, title: str = "", marks=None) -> None:
+    """Magnitude |ε/λ| and phase lag (degrees) of the structural response (Fig 8).
+    ``marks``: optional (frequencies, G) drawn as labelled points (e.g. the drive
+    frequencies of a study)."""
     plt = _pyplot()
     freq, G = np.asarray(freq), np.asarray(G)
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True, constrained_layout=True)
     a1.loglog(freq, np.abs(G))
     a1.set(ylabel="|ε/λ|", title=title or "structural frequency response (eq 13)")
     a2.semilogx(freq, -np.degrees(np.unwrap(np.angle(G))))
+    if marks is not None:
+        fm, Gm = np.asarray(marks[0]), np.asarray(marks[1])
+        lag = -np.degrees(np.angle(Gm)) % 360
+        a1.plot(fm, np.abs(Gm), "o", color="C3")
+        a2.plot(fm, lag, "o", color="C3")
+        for f_, l_ in zip(fm, lag, strict=True):
+            a2.annotate(f"{l_:.1f}°", (f_, l_), textcoords="offset points", xytext=(-28, 6),
+                        fontsize=8)
     a2.set(xlabel="frequency (Hz)", ylabel="phase lag (°)")
     for ax in (a1, a2):
         ax.grid(alpha=0.3, which="both")

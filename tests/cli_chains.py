@@ -3,7 +3,7 @@ background when the test session begins (conftest.py) so that their start-up and
 compilation overlap the in-process tests; tests/test_cli_subprocess.py checks what they
 left in their directory.
 
-    python tests/cli_chains.py e2e|resume|reproduce DIR
+    python tests/cli_chains.py e2e|resume|reproduce|sharding DIR
 """
 
 from __future__ import annotations
@@ -62,17 +62,51 @@ def resume(d):
     return {"killed": killed_at is not None, "first": first_rc, "second": rc}
 
 
+def sharding(d):
+    """The same GA with and without its population sharded over 2 host devices (a fresh
+    process: XLA_FLAGS must be set before jax starts)."""
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    with open(os.path.join(d, "sharding.log"), "w") as log:
+        rc = subprocess.run([sys.executable, __file__, "sharding_inner", d], env=env,
+                            stdout=log, stderr=subprocess.STDOUT).returncode
+    return {"sharding": rc}
+
+
+def sharding_inner(d):
+    import jax
+    import numpy as np
+    from helpers import table1_problem
+
+    import jaxhyst as jh
+
+    out = {"devices": jax.device_count()}
+    problem = table1_problem(spp=50)
+    small = jh.GASettings(q1=24, q2=10, T1=2, T2=6, T3=20, local_steps=4)
+    runs = {s: jh.run_hybrid(problem, "GATR1", seed=2, settings=small, shard=s,
+                             report=False) for s in (True, False)}
+    a, b = runs[True], runs[False]
+    out["ga_cost"] = [a.cost, b.cost]
+    out["ga_history_max_rel_diff"] = max(
+        abs(x["best_cost"] - y["best_cost"]) / y["best_cost"]
+        for x, y in zip(a.extra["history"], b.extra["history"], strict=True))
+    out["ga_params_max_rel_diff"] = float(np.max(np.abs(
+        np.asarray(a.params.to_array()) / np.asarray(b.params.to_array()) - 1)))
+    return out
+
+
 def reproduce(d):
     rc = run(["reproduce", "table1", "--quick", "--out", d], os.path.join(d, "reproduce.log"))
     return {"reproduce": rc}
 
 
 if __name__ == "__main__":
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     chain, d = sys.argv[1], sys.argv[2]
     os.makedirs(d, exist_ok=True)
     t0 = time.time()
     status = globals()[chain](d)
     status["seconds"] = time.time() - t0
-    with open(os.path.join(d, "status.json.tmp"), "w") as fh:
+    name = "inner.json" if chain == "sharding_inner" else "status.json"
+    with open(os.path.join(d, name + ".tmp"), "w") as fh:
         json.dump(status, fh)
-    os.replace(os.path.join(d, "status.json.tmp"), os.path.join(d, "status.json"))
+    os.replace(os.path.join(d, name + ".tmp"), os.path.join(d, name))

@@ -19,7 +19,7 @@ def pytest_collection_finish(session):
         return
     root = tempfile.mkdtemp(prefix="jaxhyst-cli-")
     script = os.path.join(os.path.dirname(__file__), "cli_chains.py")
-    for chain in ("reproduce", "e2e", "resume"):
+    for chain in ("reproduce", "sharding", "e2e", "resume"):
         d = os.path.join(root, chain)
         os.makedirs(d)
         CLI_CHAINS[chain] = (d, subprocess.Popen([sys.executable, script, chain, d],

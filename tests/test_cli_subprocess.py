@@ -1,6 +1,7 @@
-"""The installed ``jaxhyst`` command end to end, in subprocesses (issue 6). The chains
-themselves are in cli_chains.py and start in the background at collection (conftest.py);
-these tests wait for them and check what they left behind."""
+"""The installed ``jaxhyst`` command end to end (issue 6) and sharding over two host
+devices (issue 7), in subprocesses. The chains themselves are in cli_chains.py and start
+in the background at collection (conftest.py); these tests wait for them and check what
+they left behind."""
 
 from __future__ import annotations
 
@@ -72,3 +73,14 @@ def test_reproduce_table1_quick_runs():
         assert r["cost"] < 1e-12 and r["combination_error"] < 1e-4, r["method"]
     assert "| Ms |" in open(os.path.join(d, "table1.md")).read()
     print(f"reproduce table1 --quick: {status['seconds']:.0f} s")
+
+
+def test_sharded_population_matches_unsharded():
+    d, status = _finished("sharding")
+    assert status["sharding"] == 0, _log(d, "sharding.log")
+    with open(os.path.join(d, "inner.json")) as fh:
+        out = json.load(fh)
+    assert out["devices"] == 2
+    # each member's computation is independent: the same numbers up to round-off
+    assert out["ga_history_max_rel_diff"] <= 1e-12, out
+    assert out["ga_params_max_rel_diff"] <= 1e-9, out

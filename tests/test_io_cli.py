@@ -138,3 +138,32 @@ def test_frequency_response_and_result_json_round_trip(tmp_path, capsys):
     write_json(path, {"params": {n: {"value": v, "unit": "x"}
                                  for n, v in jh.TABLE1_TRUE.to_dict().items()}})
     assert parameters_from_json(read_json(path)).to_dict() == jh.TABLE1_TRUE.to_dict()
+
+
+def test_joint_bh_problem_from_a_multi_loop_file(tmp_path):
+    """`identify --joint` on a file of B(H) loops without time: the problem the CLI builds
+    (and `report` rebuilds from the result JSON) reproduces the generating model."""
+    from jaxhyst.cli import _actuator_to_json, build_problem
+    from jaxhyst.identify.joint import NO_ACTUATOR
+    from jaxhyst.io import bounds_to_json
+
+    p = jh.TABLE1_TRUE
+    rows = ["loop,H [kA/m],B [mT]"]
+    for k, amp in enumerate((15e3, 30e3)):
+        H = amp * np.cos(2 * np.pi * np.arange(41) / 40)
+        sim = jh.simulate(p, NO_ACTUATOR, jh.drive_from_record(None, H), variant=jh.ClassicJA(),
+                          substeps=4)
+        B = 4e-7 * np.pi * (H + np.asarray(sim.observed("M")))
+        rows += [f"{k},{float(h) / 1e3!r},{float(b) * 1e3!r}" for h, b in zip(H, B, strict=True)]
+    f = tmp_path / "bh.csv"
+    f.write_text("\n".join(rows) + "\n")
+    spec = {"data": str(f), "columns": None, "loop": None, "output": None,
+            "actuator": _actuator_to_json(NO_ACTUATOR), "bounds": bounds_to_json(jh.TABLE1_BOUNDS),
+            "fixed": {"Ms": p.Ms}, "run_in_periods": 1, "substeps": 4, "variant": "classic",
+            "joint": True, "per_loop": ["c"]}
+    problem = build_problem(spec)
+    assert problem.space.names == ("a", "k", "alpha", "c[0]", "c[1]")  # structure fixed
+    u = problem.space.u_from_params(p)
+    assert float(problem.cost_u(u)) < 1e-24
+    with pytest.raises(ValueError, match="choose one with --loop"):
+        build_problem({**spec, "joint": False})

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..identify.local import _result_name, _run, _start_z, make_solver
+from ..sharding import batch_sharding, place
 from .identifiability import Z95
 
 CHI2_95 = 3.841458820694124  # 95 % quantile of χ² with one degree of freedom
@@ -170,7 +171,7 @@ def _fit_batch(problem, solver, datas, lowers, uppers, z0, max_steps):
 
 
 def _fit_many(problem, datas, lowers, uppers, start, solver, max_steps, batch_size,
-              label=None):
+              label=None, shard=None):
     """`_fit_batch` over any number of members in batches of ``batch_size`` (the last one
     padded, so that one compiled program serves every batch); NumPy outputs."""
     z0 = _start_z(problem, start)
@@ -183,7 +184,9 @@ def _fit_many(problem, datas, lowers, uppers, start, solver, max_steps, batch_si
         pad = batch_size - len(chunk[0])
         if pad:
             chunk = [np.concatenate([a, np.repeat(a[-1:], pad, axis=0)]) for a in chunk]
-        res = _fit_batch(problem, solver_, *(jnp.asarray(a) for a in chunk), z0, max_steps)
+        sharding = batch_sharding(batch_size, shard)
+        res = _fit_batch(problem, solver_, *(place(jnp.asarray(a), sharding) for a in chunk),
+                         z0, max_steps)
         for acc, r in zip(out, res, strict=True):
             acc.append(np.asarray(r)[: batch_size - pad])
         if label:
@@ -193,9 +196,11 @@ def _fit_many(problem, datas, lowers, uppers, start, solver, max_steps, batch_si
 
 
 def fit_replicates(problem, datasets, start, solver: str = "lm", max_steps: int = 100,
-                   batch_size: int = 64, progress: bool = False) -> dict:
+                   batch_size: int = 64, progress: bool = False,
+                   shard: bool | None = None) -> dict:
     """Fit each row of ``datasets`` (R × N, same drive and space as ``problem``) from
-    ``start``, in vmapped batches of ``batch_size``.
+    ``start``, in vmapped batches of ``batch_size`` (spread over the devices when there
+    are several and ``batch_size`` divides evenly, see `jaxhyst.sharding`).
 
     Returns a dict of NumPy arrays: ``values`` and ``std_errors`` (R × n_free, SI, in the
     order of ``problem.space.names``; standard errors assume every free parameter is
@@ -211,7 +216,7 @@ def fit_replicates(problem, datasets, start, solver: str = "lm", max_steps: int 
     uppers = np.broadcast_to(np.asarray(problem.space.upper), (R, problem.space.n_free))
     values, se, codes, steps, cost = _fit_many(
         problem, datasets, lowers, uppers, start, solver, max_steps, min(batch_size, R),
-        "replicates" if progress else None)
+        "replicates" if progress else None, shard)
     return {"names": problem.space.names, "values": values, "std_errors": se, "cost": cost,
             "steps": steps, "results": [_result_name(c) for c in codes]}
 

@@ -46,6 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..sharding import batch_sharding, place
 from .ga import bcga_offspring, decode, fcga_offspring
 from .local import SOLVERS, _result_name, _run_jit, make_solver, summarize
 from .paper_solvers import with_initial_step_size
@@ -150,8 +151,8 @@ def _load(path):
 def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0,
                settings: GASettings | None = None, *, progress: bool | int = False,
                checkpoint: str | os.PathLike | None = None, checkpoint_every: int = 10,
-               resume: bool = False, stop_after: int | None = None, report: bool = True
-               ) -> IdentificationResult:
+               resume: bool = False, stop_after: int | None = None, report: bool = True,
+               shard: bool | None = None) -> IdentificationResult:
     """Identify ``problem`` with a hybrid GA.
 
     **Arguments:**
@@ -166,6 +167,9 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
     - ``stop_after``: stop after this many generations, as if interrupted (for tests and
       for splitting long runs).
     - ``report``: attach the identifiability report at the result (one jacfwd).
+    - ``shard``: spread each population evaluation over all devices (`jaxhyst.sharding`);
+      ``None`` (default) does so whenever there are several devices and the population
+      size is divisible by their number.
 
     **Returns:** an `IdentificationResult` whose ``extra`` holds ``history`` (one dict per
     generation: best/mean fitness, best cost and parameters, cumulative evaluations and
@@ -244,7 +248,8 @@ def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0
         while generation < T:
             i = generation + 1  # the paper's 1-based generation index
             population = decode(genes) if i <= s.T1 else U
-            costs = np.asarray(_evaluate(problem, population))
+            costs = np.asarray(_evaluate(problem, place(population, batch_sharding(
+                population.shape[0], shard))))
             evaluations += population.shape[0]
             bad = ~np.isfinite(costs)
             failures += int(bad.sum())
