@@ -35,6 +35,8 @@ def main():
                                                               "energy"))
     ap.add_argument("--png", help="directory for the figures")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--part", choices=("all", "fits", "speed"), default="all",
+                    help="only the fit tables, or only the speed comparison")
     args = ap.parse_args()
     if not os.path.exists(DATA):
         sys.exit(f"{DATA} not found (the shared data folder is not here).")
@@ -69,10 +71,20 @@ def main():
         return [float(np.sqrt(np.mean((pred[i, :len(b)] - b) ** 2))) for i, b in
                 enumerate(Bs)]
 
+    pj = joint()
+    if args.part in ("all", "fits"):
+        joint_res, sep = fits(args, jh, jnp, np, pj, joint, rms_per_loop, fixed, bounds,
+                              variant, loops, Bs)
+    if args.part in ("all", "speed"):
+        speed(args, jh, jax, jnp, pj, differential_evolution, least_squares)
+    if args.png and args.part in ("all", "fits"):
+        figure(args, jh, np, pj, joint_res, sep, loops, Bs, bounds, variant, fixed)
+
+
+def fits(args, jh, jnp, np, pj, joint, rms_per_loop, fixed, bounds, variant, loops, Bs):
     rows = []
     # 1. published parameters, same model
     pub = jh.Parameters.from_dict({**fixed, **PUBLISHED})
-    pj = joint()
     pub_b = jh.Parameters.from_array(jnp.broadcast_to(pub.to_array(), (3, 10)))
     rows.append(("published (README), same model", rms_per_loop(pj, pub_b), None, None))
 
@@ -118,15 +130,19 @@ def main():
     for r, _ in sep:
         print({n: round(float(getattr(r.params, n)), 8) for n in ("Ms", "a", "k", "alpha",
                                                                    "c")})
-    print(f"\ncompile (first multistart of the joint problem): {compile_s:.1f} s\n")
+    print(f"\ncompile (first multistart of the joint problem): {compile_s:.1f} s\n",
+          flush=True)
+    return joint_res, sep
 
+
+def speed(args, jh, jax, jnp, pj, differential_evolution, least_squares):
     # 5. speed: jaxhyst hybrid vs SciPy DE + least_squares, same model, loss, budget
     settings = jh.GASettings(q1=60, q2=20, T1=5, T2=45, T3=60, local_steps=4)
     budget = settings.T1 * settings.q1 + settings.T2 * settings.q2
     jh.run_hybrid(pj, "GATR2", seed=99, settings=settings, report=False)  # compile
     cost_batch = jax.jit(jax.vmap(pj.cost_u))
-    fun = jax.jit(pj.residuals)
-    jac = jax.jit(jax.jacfwd(pj.residuals))
+    fun = jax.jit(lambda z: pj.residuals(z))
+    jac = jax.jit(jax.jacfwd(lambda z: pj.residuals(z)))
     n = pj.space.n_free
     cost_batch(jnp.zeros((15 * n, n)))
     fun(jnp.zeros(n))
@@ -159,7 +175,7 @@ def main():
         print(f"| SciPy DE (vectorised, jaxhyst model) + least_squares(trf, jacfwd) | "
               f"{seed} | {c:.4e} | {1e3 * rms:.3f} | {w:.2f} |", flush=True)
         t0 = time.perf_counter()
-        cost_one = jax.jit(pj.cost_u)
+        cost_one = jax.jit(lambda u: pj.cost_u(u))
         cost_one(jnp.zeros(n))
         de = differential_evolution(lambda u: float(cost_one(jnp.asarray(u))),
                                     [(0.0, 1.0)] * n, popsize=popsize, maxiter=maxiter,
@@ -172,34 +188,36 @@ def main():
         print(f"| SciPy DE (one call per individual) + least_squares(trf, 2-point FD) | "
               f"{seed} | {float(np.sum(ls.fun ** 2)):.4e} | | {w:.2f} |", flush=True)
 
-    if args.png:
-        from jaxhyst.plots import _pyplot
 
-        plt = _pyplot()
-        os.makedirs(args.png, exist_ok=True)
-        pred = np.asarray(pj.predict_loops(joint_res.params))
-        fig, axes = plt.subplots(2, 3, figsize=(14, 7), height_ratios=[2, 1],
-                                 constrained_layout=True)
-        for i, (lp, b) in enumerate(zip(loops, Bs, strict=True)):
-            ax, ax2 = axes[0, i], axes[1, i]
-            ax.plot(lp.H, b * 1e3, ".", ms=3, color="0.35", label="measured")
-            ax.plot(lp.H, pred[i, :len(b)] * 1e3, "-", color="C3", label="joint fit")
-            r_sep = sep[i][0]
-            p_sep = np.asarray(jh.loop_problem(lp.H, b, bounds, variant=variant, substeps=4,
-                                               fixed=fixed).predict(r_sep.params))
-            ax.plot(lp.H, p_sep * 1e3, "--", color="C0", lw=1, label="fitted alone")
-            ax.set(xlabel="H (A/m)", ylabel="B (mT)", title=f"loop {i}")
-            ax.grid(alpha=0.3)
-            ax2.plot((pred[i, :len(b)] - b) * 1e3, color="C3", label="joint")
-            ax2.plot((p_sep - b) * 1e3, "--", color="C0", label="alone")
-            ax2.set(xlabel="sample", ylabel="model − measured (mT)")
-            ax2.grid(alpha=0.3)
-        axes[0, 0].legend()
-        axes[1, 0].legend()
-        fig.suptitle(f"MnZn ferrite, {type(variant).__name__}: joint fit (all parameters "
-                     "shared) and separate fits")
-        fig.savefig(os.path.join(args.png, f"mnzn_{args.variant}.png"), dpi=110)
-        plt.close(fig)
+
+def figure(args, jh, np, pj, joint_res, sep, loops, Bs, bounds, variant, fixed):
+    from jaxhyst.plots import _pyplot
+
+    plt = _pyplot()
+    os.makedirs(args.png, exist_ok=True)
+    pred = np.asarray(pj.predict_loops(joint_res.params))
+    fig, axes = plt.subplots(2, 3, figsize=(14, 7), height_ratios=[2, 1],
+                             constrained_layout=True)
+    for i, (lp, b) in enumerate(zip(loops, Bs, strict=True)):
+        ax, ax2 = axes[0, i], axes[1, i]
+        ax.plot(lp.H, b * 1e3, ".", ms=3, color="0.35", label="measured")
+        ax.plot(lp.H, pred[i, :len(b)] * 1e3, "-", color="C3", label="joint fit")
+        r_sep = sep[i][0]
+        p_sep = np.asarray(jh.loop_problem(lp.H, b, bounds, variant=variant, substeps=4,
+                                           fixed=fixed).predict(r_sep.params))
+        ax.plot(lp.H, p_sep * 1e3, "--", color="C0", lw=1, label="fitted alone")
+        ax.set(xlabel="H (A/m)", ylabel="B (mT)", title=f"loop {i}")
+        ax.grid(alpha=0.3)
+        ax2.plot((pred[i, :len(b)] - b) * 1e3, color="C3", label="joint")
+        ax2.plot((p_sep - b) * 1e3, "--", color="C0", label="alone")
+        ax2.set(xlabel="sample", ylabel="model − measured (mT)")
+        ax2.grid(alpha=0.3)
+    axes[0, 0].legend()
+    axes[1, 0].legend()
+    fig.suptitle(f"MnZn ferrite, {type(variant).__name__}: joint fit (all parameters "
+                 "shared) and separate fits")
+    fig.savefig(os.path.join(args.png, f"mnzn_{args.variant}.png"), dpi=110)
+    plt.close(fig)
 
 
 if __name__ == "__main__":

@@ -289,16 +289,21 @@ def read_json(path) -> dict:
 # -- parameter, bounds and actuator files ------------------------------------------------
 
 
-def parameters_from_json(obj: dict, what: str = "parameters") -> Parameters:
-    """`Parameters` from ``{name: value}`` or a result's ``{"params": {name: {"value":
-    v}}}``."""
-    if "params" in obj and isinstance(obj["params"], dict):
-        obj = {n: (v["value"] if isinstance(v, dict) else v) for n, v in obj["params"].items()}
+def _require_names(obj: dict, what: str) -> None:
+    """Refuse a mapping that lacks one of the ten names or has an unknown one."""
     missing = [n for n in NAMES if n not in obj]
     unknown = [n for n in obj if n not in NAMES]
     if missing or unknown:
         raise DataError(f"{what} need the ten names {list(NAMES)} (SI units); missing "
                         f"{missing}, unknown {unknown}.")
+
+
+def parameters_from_json(obj: dict, what: str = "parameters") -> Parameters:
+    """`Parameters` from ``{name: value}`` or a result's ``{"params": {name: {"value":
+    v}}}``."""
+    if "params" in obj and isinstance(obj["params"], dict):
+        obj = {n: (v["value"] if isinstance(v, dict) else v) for n, v in obj["params"].items()}
+    _require_names(obj, what)
     try:
         vals = {n: np.asarray(obj[n], dtype=float) for n in NAMES}
         if all(v.ndim == 0 for v in vals.values()):
@@ -312,11 +317,7 @@ def parameters_from_json(obj: dict, what: str = "parameters") -> Parameters:
 
 def bounds_from_json(obj: dict) -> Bounds:
     """`Bounds` from ``{name: [lower, upper]}`` for all ten parameters (SI)."""
-    missing = [n for n in NAMES if n not in obj]
-    unknown = [n for n in obj if n not in NAMES]
-    if missing or unknown:
-        raise DataError(f"bounds need [lower, upper] for each of {list(NAMES)}; missing "
-                        f"{missing}, unknown {unknown}.")
+    _require_names(obj, "bounds ([lower, upper] per parameter)")
     try:
         pairs = {n: (float(obj[n][0]), float(obj[n][1])) for n in NAMES}
     except (TypeError, ValueError, IndexError):

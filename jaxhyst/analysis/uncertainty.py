@@ -102,7 +102,7 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
         raise ValueError("A profile needs at least one other free parameter to re-fit.")
     i_free = space.names.index(name)
     lo, hi = float(space.lower[i_free]), float(space.upper[i_free])
-    value = float(getattr(params, name))
+    value = float(np.asarray(space.free_values(params))[i_free])
     if grid is None:
         from .identifiability import identifiability
 
