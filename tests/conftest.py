@@ -12,6 +12,11 @@ import jaxhyst  # noqa: E402,F401  (float64 on import)
 CLI_CHAINS: dict = {}
 
 
+def pytest_collection_modifyitems(session, config, items):
+    """Check the background chains last, so that they run alongside everything else."""
+    items.sort(key=lambda item: item.module.__name__ == "test_cli_subprocess")
+
+
 def pytest_collection_finish(session):
     """Start the subprocess CLI chains as soon as the tests that check them are selected,
     so that they run alongside the in-process tests instead of after them."""

@@ -39,7 +39,10 @@ REACHES_ZERO = {"lm": True, "dogleg": True, "lma": True, "tra": True, "indirect_
 MAX_STEPS = {"indirect_lm": 80}
 
 
-@pytest.mark.parametrize("solver", SOLVERS)
+# indirect_lm is the slowest case (~80 s cold: it never stops early) and is not one of
+# the paper's solvers: it runs with `-m slow`, outside the timed default run.
+@pytest.mark.parametrize("solver", [pytest.param(s, marks=pytest.mark.slow)
+                                    if s == "indirect_lm" else s for s in SOLVERS])
 def test_solver_outcome_on_table1(problem, solver):
     res = jh.multistart(problem, _starts(problem), solver=solver,
                         max_steps=MAX_STEPS.get(solver, 200))

@@ -146,10 +146,22 @@ class ParameterSpace(eqx.Module):
         return z_from_u(self.u_from_params(params))
 
 
-def _reverses_both_ways(H) -> bool:
-    """True if the field both rises and falls (a loop starting at a tip counts)."""
-    dH = np.diff(np.asarray(H))
-    return bool(np.any(dH > 0) and np.any(dH < 0))
+def _sweeps_a_loop(H) -> bool:
+    """True if, after its first reversal, the field sweeps back over at least 90 % of its
+    observed range: a closed loop, whether it starts at a tip or mid-branch (a window
+    that merely turns round near a tip does not determine a loop)."""
+    H = np.asarray(H)
+    dH = np.diff(H)
+    moving = np.flatnonzero(dH != 0)
+    if moving.size == 0:
+        return False
+    s = np.sign(dH[moving])
+    turns = np.flatnonzero(s[1:] != s[:-1])
+    if turns.size == 0:
+        return False
+    r = moving[turns[0] + 1]  # sample index where the field turned
+    span = float(np.max(H) - np.min(H))
+    return float(np.max(np.abs(H[r:] - H[r]))) >= 0.9 * span
 
 
 class Problem(eqx.Module):
@@ -198,7 +210,7 @@ class Problem(eqx.Module):
         if not np.all(np.isfinite(data)):
             bad = np.flatnonzero(~np.isfinite(data))[:5].tolist()
             raise ValueError(f"data contain NaN or inf at samples {bad}; remove or repair them.")
-        if require_full_period and not _reverses_both_ways(drive.observed(drive.H)):
+        if require_full_period and not _sweeps_a_loop(drive.observed(drive.H)):
             raise ValueError(
                 "The observed data cover less than one period of the drive: the field must "
                 "rise and fall within the observed window to determine a hysteresis loop. "
