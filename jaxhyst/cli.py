@@ -280,6 +280,9 @@ def _identify(args) -> int:
             "per_loop": [n.strip() for n in (args.per_loop or "").split(",") if n.strip()]}
     if spec["per_loop"] and not args.joint:
         raise CLIError("--per-loop needs --joint (several loops fitted together).")
+    if args.method not in HYBRID and (args.checkpoint or args.resume):
+        raise CLIError("--checkpoint/--resume apply to the hybrid GAs; a local solve is not "
+                       "checkpointed (it is short: rerun it).")
     problem = build_problem(spec)
     n = problem.space.n_free
     if args.method in HYBRID:
@@ -530,7 +533,8 @@ def build_parser() -> argparse.ArgumentParser:
     ide.add_argument("--resume", action="store_true", help="continue from --checkpoint")
     ide.add_argument("--run-in-periods", type=int, default=1,
                      help="copies of the record simulated before it (transient)")
-    ide.add_argument("--substeps", type=int, default=2)
+    ide.add_argument("--substeps", type=int, default=2, help="RK4 substeps per sample "
+                     "(raise to 4–8 for coarse B–H loops)")
     ide.add_argument("--progress", type=int, default=10,
                      help="progress line every N generations on stderr (0: quiet)")
     ide.add_argument("--out", help="write the result (JSON, names and units) here")

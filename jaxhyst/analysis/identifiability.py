@@ -21,6 +21,8 @@ multiplied by s^{v_r}. For a parameter at exactly 0 the box width is used as its
   reported as "not identifiable" rather than with a huge or NaN interval. An identifiable
   parameter whose relative standard error exceeds ``max_rel_se`` (default 0.5) is
   "poorly determined" (practical non-identifiability: it depends on the noise level).
+- Residual weights: those of the problem's own least-squares (one per loop of a
+  `JointProblem`, relative to the largest; all 1 for a single loop).
 """
 
 from __future__ import annotations
@@ -339,8 +341,12 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     # signed θ0, so that x = dθ/θ0 = d log|θ| also for negative θ (α̃)
     scale = np.where(values != 0, values, np.where(width > 0, width, 1.0))
     J, pred = _log_jacobian(problem, jnp.asarray(values), jnp.asarray(scale))
-    J = np.asarray(J)
-    e = np.asarray(pred) - np.asarray(problem.data)
+    # residual weights: 1 for a single-loop problem; a joint problem scales each loop by
+    # its max|data| (relative to the largest), so σ is in the largest loop's units
+    w = np.broadcast_to(np.asarray(problem.sample_scale, dtype=float), (J.shape[0],))
+    w = w / np.max(w)
+    J = np.asarray(J) / w[:, None]
+    e = (np.asarray(pred) - np.asarray(problem.data)) / w
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(e))):
         raise ValueError("The model output or its Jacobian is not finite at these parameters; "
                          "the identifiability analysis needs a point where the model runs.")

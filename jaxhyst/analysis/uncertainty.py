@@ -3,6 +3,7 @@
 - `profile_likelihood`: for one parameter, re-fit all the others with that parameter held
   at each value of a grid — one vmapped batch of local solves — and turn the costs into
   the likelihood-ratio statistic Δχ²(v) = (E(v) − E_min)/σ̂² with σ̂² = E_min/(N − n)
+  (E the problem's weighted sum of squares)
   (Gaussian noise of unknown variance, estimated from the best fit). The 95 % profile
   interval is where Δχ² ≤ 3.84 (χ²₁ quantile); a side that never crosses inside the box
   is reported as unbounded (the data do not bound the parameter there). Unlike the
@@ -125,11 +126,13 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
                                       batch_size or G)
     theta = np.asarray(space.params_from_free(jnp.asarray(x)).to_array())
     N = problem.data.shape[0]
-    E = costs * problem.scale**2 * N
-    best = float(np.sum((np.asarray(problem.predict(params)) - np.asarray(problem.data)) ** 2))
-    E_min = min(best, float(np.nanmin(E)))
-    sigma2 = E_min / max(N - space.n_free, 1)
-    d = (E - E_min) / sigma2 if sigma2 > 0 else np.where(E > E_min, np.inf, 0.0)
+    # in normalised costs (the residual weights of the problem, per loop for a joint one):
+    # Δχ² = (cost(v) − cost_min) / σ̂², σ̂² = cost_min / (N − n)
+    e = np.asarray(problem.predict(params)) - np.asarray(problem.data)
+    best = float(np.sum((e / np.asarray(problem.sample_scale)) ** 2) / N)
+    c_min = min(best, float(np.nanmin(costs)))
+    sigma2 = c_min / max(N - space.n_free, 1)
+    d = (costs - c_min) / sigma2 if sigma2 > 0 else np.where(costs > c_min, np.inf, 0.0)
     d = np.where(np.isfinite(d), d, np.inf)
     i0 = int(np.argmin(d))
     interval = (_crossing(grid, d, i0, -1), _crossing(grid, d, i0, +1))
@@ -146,8 +149,10 @@ def _gn_std_errors(problem, x):
     def out(dx):
         return problem.predict_free(x + dx * scale)
 
-    J = jax.jacfwd(out)(jnp.zeros_like(x))
-    e = out(jnp.zeros_like(x)) - problem.data
+    w = jnp.broadcast_to(jnp.asarray(problem.sample_scale), problem.data.shape)
+    w = w / jnp.max(w)  # 1 for a single loop; per-loop weights of a joint problem
+    J = jax.jacfwd(out)(jnp.zeros_like(x)) / w[:, None]
+    e = (out(jnp.zeros_like(x)) - problem.data) / w
     N, n = J.shape
     sigma2 = jnp.sum(e**2) / (N - n)
     _, s, Vt = jnp.linalg.svd(J, full_matrices=False)
