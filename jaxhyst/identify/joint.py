@@ -140,15 +140,12 @@ class JointSpace(eqx.Module):
 
     def free_values(self, params: Parameters) -> jax.Array:
         """Free values from `Parameters` with leaves (L,) (or scalars: the same in every
-        loop)."""
+        loop). A shared parameter is read from the last loop (its values should agree).
+        Traceable (static gather), so it works inside jit/vmap."""
         theta = jnp.broadcast_to(params.to_array(), (self.n_loops, len(NAMES)))
         idx = np.asarray(self.index)
-        x = np.zeros(self.n_free)
-        for l_ in range(self.n_loops):
-            for j in range(len(NAMES)):
-                if idx[l_, j] >= 0:
-                    x[idx[l_, j]] = float(theta[l_, j])
-        return jnp.asarray(x)
+        sel = idx >= 0
+        return jnp.zeros(self.n_free, theta.dtype).at[idx[sel]].set(theta[sel])
 
     def u_from_params(self, params: Parameters) -> jax.Array:
         width = jnp.where(self.upper > self.lower, self.upper - self.lower, 1.0)
