@@ -128,15 +128,9 @@ def _drive_from_args(args, actuator):
     from jaxhyst.io import read_loops
 
     if args.drive:
-        loops = read_loops(args.drive, args.columns)
-        loop = loops[0]
-        H = loop.H
-        if H is None:
-            if actuator.n is None:
-                raise CLIError(f"{args.drive} gives a current I but {actuator.name} has no n; "
-                               "give the field H instead.")
-            H = actuator.n * loop.I + actuator.Hb
-        return jh.drive_from_record(loop.t, H), f"drive from {args.drive}"
+        loop = read_loops(args.drive, args.columns)[0]
+        return (jh.drive_from_record(loop.t, _loop_field(loop, actuator, args.drive)),
+                f"drive from {args.drive}")
     if args.field_amplitude is not None:
         d = jh.sinusoidal_field(args.frequency, args.field_amplitude, args.field_offset,
                                 periods=args.periods,
@@ -198,16 +192,21 @@ def _loop_signal(spec, loop, out):
     return out
 
 
+def _loop_field(loop, actuator, source):
+    """The loop's field H (A/m), from its H column or as H = n·I + Hb from its current."""
+    if loop.H is not None:
+        return loop.H
+    if actuator.n is None:
+        raise CLIError(f"{source} gives a current I but {actuator.name} has no turns per "
+                       "metre n; add n to the actuator or give the field H.")
+    return actuator.n * loop.I + actuator.Hb
+
+
 def _loop_drive(spec, loop, out, actuator):
     import jaxhyst as jh
     from jaxhyst.io import SIGNAL_OUTPUTS
 
-    H = loop.H
-    if H is None:
-        if actuator.n is None:
-            raise CLIError(f"{spec['data']} gives a current I but the actuator has no turns "
-                           "per metre n; add n to the actuator or give H.")
-        H = actuator.n * loop.I + actuator.Hb
+    H = _loop_field(loop, actuator, spec["data"])
     if loop.t is None and SIGNAL_OUTPUTS[out] in ("displacement", "strain"):
         raise CLIError(f"{spec['data']} has no time column t; {out} depends on the structural "
                        "dynamics, which need times (only M or B loops may omit t).")
@@ -218,7 +217,7 @@ def build_problem(spec: dict):
     """A `Problem` (or `JointProblem` when ``spec["joint"]``) from the JSON-able ``spec``
     stored with every CLI result (so that ``jaxhyst report`` can rebuild it)."""
     import jaxhyst as jh
-    from jaxhyst.identify.joint import STRUCTURAL
+    from jaxhyst.identify.joint import fix_structural
     from jaxhyst.io import SIGNAL_OUTPUTS, bounds_from_json, read_loops
 
     loops = read_loops(spec["data"], spec.get("columns"))
@@ -230,9 +229,7 @@ def build_problem(spec: dict):
     if spec.get("joint"):
         out = _loop_signal(spec, loops[0], spec.get("output"))
         if SIGNAL_OUTPUTS[out] in ("magnetization", "flux_density"):
-            lo, hi = bounds.lower.to_dict(), bounds.upper.to_dict()
-            for n in STRUCTURAL:  # they never affect M or B
-                fixed.setdefault(n, 0.5 * (lo[n] + hi[n]))
+            fixed = fix_structural(bounds, fixed)
         space = jh.JointSpace(bounds, len(loops), per_loop=spec.get("per_loop") or (),
                               fixed=fixed)
         return jh.JointProblem([lp.signals[out] for lp in loops],
@@ -250,9 +247,7 @@ def build_problem(spec: dict):
         loop = loops[ids.index(spec["loop"])]
     out = _loop_signal(spec, loop, spec.get("output"))
     if SIGNAL_OUTPUTS[out] in ("magnetization", "flux_density"):
-        lo, hi = bounds.lower.to_dict(), bounds.upper.to_dict()
-        for n in STRUCTURAL:
-            fixed.setdefault(n, 0.5 * (lo[n] + hi[n]))
+        fixed = fix_structural(bounds, fixed)
     space = jh.ParameterSpace(bounds, fixed or None)
     return jh.Problem(loop.signals[out], _loop_drive(spec, loop, out, actuator), actuator,
                       space, output=SIGNAL_OUTPUTS[out], variant=variant,

@@ -43,6 +43,16 @@ STRUCTURAL = ("lambda_s", "E", "Kz", "Mz", "Cz")
 NO_ACTUATOR = Actuator(Ar=1.0, lr=1.0, name="none (magnetization only)")
 
 
+def fix_structural(bounds: Bounds, fixed: dict | None = None) -> dict:
+    """``fixed`` plus the `STRUCTURAL` parameters not already in it, at their box centre:
+    for M or B data they are irrelevant, and left free they would be null directions."""
+    lo, hi = bounds.lower.to_dict(), bounds.upper.to_dict()
+    out = dict(fixed or {})
+    for n in STRUCTURAL:
+        out.setdefault(n, 0.5 * (lo[n] + hi[n]))
+    return out
+
+
 class JointSpace(eqx.Module):
     """Free parameters of L loops: shared, per loop, or fixed.
 
@@ -317,11 +327,6 @@ def loop_problem(H, data, bounds: Bounds, *, output: str = "flux_density", t=Non
         drive = Drive(tt, H)
     else:
         drive = drive_from_record(t, H, run_in_periods=run_in_periods)
-    lo = np.asarray(bounds.lower.to_array())
-    hi = np.asarray(bounds.upper.to_array())
-    fixed = dict(fixed or {})
-    for n in STRUCTURAL:
-        j = NAMES.index(n)
-        fixed.setdefault(n, 0.5 * (lo[j] + hi[j]))
-    return Problem(data, drive, NO_ACTUATOR, ParameterSpace(bounds, fixed), output=output,
+    return Problem(data, drive, NO_ACTUATOR,
+                   ParameterSpace(bounds, fix_structural(bounds, fixed)), output=output,
                    variant=variant, substeps=substeps)
