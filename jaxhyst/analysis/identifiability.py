@@ -318,7 +318,8 @@ def _log_jacobian(problem, x0, scale):
     def output(dx):
         return problem.predict_free(x0 + dx * scale)
 
-    return jax.jacfwd(output)(jnp.zeros_like(x0)), output(jnp.zeros_like(x0))
+    # the primal rides along as aux: one forward pass gives J and the prediction
+    return jax.jacfwd(lambda dx: ((y := output(dx)), y), has_aux=True)(jnp.zeros_like(x0))
 
 
 def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float = 0.5

@@ -151,8 +151,9 @@ def _gn_std_errors(problem, x):
 
     w = jnp.broadcast_to(jnp.asarray(problem.sample_scale), problem.data.shape)
     w = w / jnp.max(w)  # 1 for a single loop; per-loop weights of a joint problem
-    J = jax.jacfwd(out)(jnp.zeros_like(x)) / w[:, None]
-    e = (out(jnp.zeros_like(x)) - problem.data) / w
+    J, pred = jax.jacfwd(lambda dx: ((y := out(dx)), y), has_aux=True)(jnp.zeros_like(x))
+    J = J / w[:, None]
+    e = (pred - problem.data) / w
     N, n = J.shape
     sigma2 = jnp.sum(e**2) / (N - n)
     _, s, Vt = jnp.linalg.svd(J, full_matrices=False)
