@@ -1,4 +1,4 @@
-"""Spreading a batch axis (GA population, replicate data sets) over devices.
+"""Spreading a batch axis (GA population, replicate data sets, loops) over devices.
 
 With several devices (GPUs, or CPU host devices via
 ``XLA_FLAGS=--xla_force_host_platform_device_count=N``) a batch whose leading axis is
@@ -6,6 +6,10 @@ divisible by the device count is placed with a `jax.sharding.NamedSharding` over
 mesh; the jitted, vmapped evaluation then runs SPMD, each device computing its share.
 Each member's computation is independent, so the result is the same as unsharded (the
 tests check it). On one device nothing changes.
+
+`map_sharded` splits a batch axis inside a traced computation instead (`JointProblem`'s
+loops axis, so that one local solve uses every device); under an outer ``vmap`` (a GA
+population, jacfwd's tangents) the outer axis stays whole on each device.
 """
 
 from __future__ import annotations
@@ -31,3 +35,16 @@ def batch_sharding(n: int, shard: bool | None = None):
 def place(x, sharding):
     """``x`` on its sharding (or unchanged when ``sharding`` is None)."""
     return x if sharding is None else jax.device_put(x, sharding)
+
+
+def map_sharded(fn, n: int, shard: bool):
+    """``fn`` (arguments and results with a leading batch axis of length ``n``) run with
+    that axis split over all devices by `jax.shard_map`: each device applies ``fn`` to its
+    own block, with no communication inside (a partitioned program with collectives
+    inside the scan deadlocked on CPU host devices). ``fn`` itself when ``shard`` is
+    False."""
+    if not shard:
+        return fn
+    spec = batch_sharding(n, True).spec
+    mesh = Mesh(np.array(jax.devices()), ("batch",))
+    return jax.shard_map(fn, mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False)

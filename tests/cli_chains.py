@@ -91,7 +91,49 @@ def sharding_inner(d):
         for x, y in zip(a.extra["history"], b.extra["history"], strict=True))
     out["ga_params_max_rel_diff"] = float(np.max(np.abs(
         np.asarray(a.params.to_array()) / np.asarray(b.params.to_array()) - 1)))
+    out.update(_sharded_loops())
     return out
+
+
+def _sharded_loops():
+    """A two-loop joint problem with its loops split over the two devices: residuals and
+    their Jacobian (what every local solver uses) against the unsharded problem."""
+    import equinox as eqx
+    import jax
+    import numpy as np
+
+    import jaxhyst as jh
+
+    act = jh.ACTUATOR2
+    truth = jh.TABLE3[800]
+    drives = [jh.sinusoidal_field(f, 8e3, act.Hb, samples_per_period=40) for f in (800, 1250)]
+    data = [np.asarray(d.observed(jh.simulate(truth, act, d).y)) for d in drives]
+    x = np.asarray(truth.to_array())
+    bounds = jh.Bounds(jh.Parameters.from_array(np.minimum(0.5 * x, 1.5 * x)),
+                       jh.Parameters.from_array(np.maximum(0.5 * x, 1.5 * x)))
+    space = jh.JointSpace(bounds, 2, per_loop=("a", "k", "c"),
+                          fixed={"Ms": float(truth.Ms), "Mz": float(truth.Mz)})
+    z = space.z_from_params(jh.Parameters.from_array(
+        np.tile(np.asarray(truth.to_array()) * 1.05, (2, 1))))
+
+    @eqx.filter_jit
+    def evaluate(problem, z):
+        return problem.predict_loops(problem.space.params_from_z(z)), \
+            problem.residuals(z), jax.jacfwd(problem.residuals)(z)
+
+    out = {}
+    for shard in (True, False):
+        problem = jh.JointProblem(data, drives, act, space, shard_loops=shard)
+        loops, r, J = evaluate(problem, z)
+        out[shard] = (np.asarray(r), np.asarray(J))
+        if shard:  # really split: one loop's rows on each device
+            out["loops_split"] = problem.shard_loops and [
+                s.data.shape[0] for s in loops.addressable_shards] == [1, 1]
+    scale = np.max(np.abs(out[False][1]))
+    return {"loops_sharded": bool(out["loops_split"]),
+            "loops_residual_max_diff": float(np.max(np.abs(out[True][0] - out[False][0]))),
+            "loops_jacobian_max_rel_diff": float(np.max(np.abs(out[True][1] - out[False][1]))
+                                                 / scale)}
 
 
 def reproduce(d):

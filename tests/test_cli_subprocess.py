@@ -84,3 +84,7 @@ def test_sharded_population_matches_unsharded():
     # each member's computation is independent: the same numbers up to round-off
     assert out["ga_history_max_rel_diff"] <= 1e-12, out
     assert out["ga_params_max_rel_diff"] <= 1e-9, out
+    # a joint problem's loops split over the devices: the same residuals and Jacobian
+    assert out["loops_sharded"], out
+    assert out["loops_residual_max_diff"] <= 1e-14, out
+    assert out["loops_jacobian_max_rel_diff"] <= 1e-12, out
