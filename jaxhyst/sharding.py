@@ -40,9 +40,8 @@ def place(x, sharding):
 def map_sharded(fn, n: int, shard: bool):
     """``fn`` (arguments and results with a leading batch axis of length ``n``) run with
     that axis split over all devices by `jax.shard_map`: each device applies ``fn`` to its
-    own block, with no communication inside (a partitioned program with collectives
-    inside the scan deadlocked on CPU host devices). ``fn`` itself when ``shard`` is
-    False."""
+    own block, with no communication inside ``fn`` (rather than leaving the split of a
+    time loop to the partitioner). ``fn`` itself when ``shard`` is False."""
     if not shard:
         return fn
     spec = batch_sharding(n, True).spec

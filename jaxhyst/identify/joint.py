@@ -207,10 +207,11 @@ class JointProblem(eqx.Module):
     - ``space``: a `JointSpace` for L = len(data) loops.
     - ``shard_loops``: spread the loops over all devices (`jaxhyst.sharding.map_sharded`):
       each device simulates its share of the loops, so that one local solve can use
-      several accelerators. ``True`` needs L to be a multiple of the device count.
-      Default ``False``: on CPU host devices we measured a joint LM solve 10× *slower*
-      sharded (the solver's every step then synchronises the devices) with identical
-      results; the GA's population sharding (`run_hybrid`) is the one that pays on CPUs.
+      several accelerators. ``True`` needs L to be a multiple of the device count (and
+      does nothing on one device). Default ``False``: on CPU host devices a joint LM
+      solve ran 6× *slower* sharded, with the same result (the whole solver then runs
+      as a multi-device program; `benchmarks/bench_sharding.py`); the GA's population
+      sharding (`run_hybrid`) is the one that pays on CPUs.
     """
 
     data: jax.Array  # (N,) valid samples of all loops, concatenated
