@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..identify.local import _result_name, _run, _start_z, make_solver
+from ..identify.local import _result_name, _run, _start_z, make_solver, predict_jit
 from ..sharding import batch_sharding, place
 from .identifiability import Z95
 
@@ -128,7 +128,7 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
     N = problem.data.shape[0]
     # in normalised costs (the residual weights of the problem, per loop for a joint one):
     # Δχ² = (cost(v) − cost_min) / σ̂², σ̂² = cost_min / (N − n)
-    e = np.asarray(problem.predict(params)) - np.asarray(problem.data)
+    e = np.asarray(predict_jit(problem, params)) - np.asarray(problem.data)
     best = float(np.sum((e / np.asarray(problem.sample_scale)) ** 2) / N)
     c_min = min(best, float(np.nanmin(costs)))
     sigma2 = c_min / max(N - space.n_free, 1)

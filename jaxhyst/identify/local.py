@@ -47,12 +47,45 @@ def make_solver(name: str, rtol: float = 1e-10, atol: float = 1e-12):
     raise ValueError(f"Unknown solver {name!r}; choose one of {list(SOLVERS)}.")
 
 
+def jacobian_linearized(fn):
+    """``fn`` (a residual vector of a few parameters) with a custom JVP that forms the
+    whole Jacobian by one forward-mode pass (`jax.jacfwd`, primal computed once) and
+    returns J·t.
+
+    Optimistix linearizes the residuals once per step and then applies the linear map
+    to a basis (to materialise J for its QR) and its transpose (for Jᵀr). Linearizing
+    the simulation's scan itself stores every intermediate of the time loop and replays
+    the tangent scan for each use; with this rule the stored linearization is just the
+    matrix J, so each step costs one jacfwd. Measured on the joint MnZn problem (3 loops,
+    5 parameters): an LM step 54 ms → 17 ms. Values and derivatives are unchanged (the
+    rule is the exact derivative); it differentiates again (jacfwd inside) if needed.
+    """
+
+    @jax.custom_jvp
+    def f(z, args=None):
+        return fn(z, args)
+
+    @f.defjvp
+    def f_jvp(primals, tangents):
+        z, args = primals
+        t, _ = tangents
+
+        def both(z):
+            r = fn(z, args)
+            return r, r
+
+        J, r = jax.jacfwd(both, has_aux=True)(z)
+        return r, J @ t
+
+    return f
+
+
 def _run(problem: Problem, solver, z0, max_steps: int):
     """One solve; returns only arrays (value, result, steps, cost) so that it vmaps
     (Optimistix issue #63: a whole Solution does not)."""
     sol = optx.least_squares(
-        problem.residuals, solver, z0, max_steps=max_steps, throw=False,
-        options={"jac": "fwd"},
+        jacobian_linearized(problem.residuals), solver, z0, max_steps=max_steps,
+        throw=False, options={"jac": "fwd"},
     )  # fmt: skip
     z = sol.value
     cost = jnp.sum(problem.residuals(z) ** 2)
@@ -99,13 +132,19 @@ def _free_dict(problem, z) -> dict:
     return {n: float(v) for n, v in zip(sp.names, x, strict=True)}
 
 
+@eqx.filter_jit
+def predict_jit(problem, params) -> jax.Array:
+    """``problem.predict(params)`` compiled (cached per problem structure). Called eagerly,
+    the vmapped scan of a joint problem runs op by op: 1.3 s of a 4.3 s MnZn hybrid."""
+    return problem.predict(params)
+
+
 def summarize(problem: Problem, z, steps, code, solver_name: str, wall: float,
               extra: dict | None = None, report: bool = True) -> IdentificationResult:
     """Build an `IdentificationResult` at the solver coordinate ``z``, with the
     identifiability report at that point when ``report`` (one jacfwd of the model)."""
     params = problem.space.params_from_z(z)
-    pred = problem.predict(params)
-    e = np.asarray(pred - problem.data)
+    e = np.asarray(predict_jit(problem, params) - problem.data)
     w = np.asarray(problem.sample_scale)
     cost = float(np.sum((e / w) ** 2) / e.shape[0])  # Σr², as in residuals
     result = IdentificationResult(
