@@ -135,3 +135,26 @@ def test_bad_problems_are_refused(problem):
         jh.solve(problem, np.full(10, 0.5), solver="bfgs")
     with pytest.raises(ValueError, match="must lie in \\[0, 1\\]"):
         jh.solve(problem, np.full(10, 1.5))
+
+
+def test_jacobian_linearized_residuals_have_the_same_derivatives(problem):
+    """The custom JVP the local solvers see (one jacfwd, then J·t) is the exact
+    derivative: forward, reverse and batched derivatives equal those of the plain
+    residuals."""
+    from jaxhyst.identify.local import jacobian_linearized
+
+    plain = problem.residuals
+    wrapped = jacobian_linearized(problem.residuals)
+    z = problem.space.z_from_params(jh.Parameters.from_array(jh.TABLE1_TRUE.to_array()
+                                                             * 1.03))
+    np.testing.assert_array_equal(wrapped(z), plain(z))
+    J = jax.jit(jax.jacfwd(plain))(z)
+    scale = float(jnp.max(jnp.abs(J)))
+    np.testing.assert_allclose(jax.jit(jax.jacfwd(wrapped))(z), J, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(jax.jit(jax.jacrev(wrapped))(z), J, rtol=0, atol=1e-12 * scale)
+    t = jnp.linspace(-1.0, 1.0, z.shape[0])
+    _, jt = jax.jvp(wrapped, (z,), (t,))
+    np.testing.assert_allclose(jt, J @ t, rtol=0, atol=1e-12 * scale * z.shape[0])
+    zs = jnp.stack([z, 0.9 * z])
+    batched = jax.jit(jax.vmap(jax.jacfwd(wrapped)))(zs)
+    np.testing.assert_allclose(batched[0], J, rtol=0, atol=1e-12 * scale)
