@@ -207,11 +207,11 @@ class JointProblem(eqx.Module):
     - ``space``: a `JointSpace` for L = len(data) loops.
     - ``shard_loops``: spread the loops over all devices (`jaxhyst.sharding.map_sharded`):
       each device simulates its share of the loops, so that one local solve can use
-      several accelerators. ``True`` needs L to be a multiple of the device count (and
-      does nothing on one device). Default ``False``: on CPU host devices a joint LM
-      solve ran 6× *slower* sharded, with the same result (the whole solver then runs
-      as a multi-device program; `benchmarks/bench_sharding.py`); the GA's population
-      sharding (`run_hybrid`) is the one that pays on CPUs.
+      several devices. ``True`` needs L to be a multiple of the device count (and does
+      nothing on one device). Measured on 2 CPU host devices: a 2-loop joint LM solve
+      1.6× faster, same result (`benchmarks/bench_sharding.py`). Opt-in (default
+      ``False``) because a GA on such a problem would split the loops *and* its
+      population over the same devices, which we have not measured.
     """
 
     data: jax.Array  # (N,) valid samples of all loops, concatenated
