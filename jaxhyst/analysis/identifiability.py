@@ -313,13 +313,25 @@ def _analyse(names, values, scale, J, e, null_tol) -> dict:
                 null_space=Vt[null])
 
 
-@eqx.filter_jit
-def _log_jacobian(problem, x0, scale):
-    def output(dx):
-        return problem.predict_free(x0 + dx * scale)
+def weighted_log_jacobian(problem, x0, scale):
+    """(J, e) at the free values ``x0``: J = ∂ prediction/∂dx at dx = 0 for
+    x = x0 + dx·scale (relative coordinates when scale = x0), e = prediction − data,
+    both divided by the problem's residual weights — 1 for a single-loop problem; a
+    joint problem scales each loop by its max|data| relative to the largest, so σ is in
+    the largest loop's units. One forward pass (the prediction rides along as jacfwd's
+    aux). Traceable: used jitted here and inside the vmapped replicate fits."""
 
-    # the primal rides along as aux: one forward pass gives J and the prediction
-    return jax.jacfwd(lambda dx: ((y := output(dx)), y), has_aux=True)(jnp.zeros_like(x0))
+    def output(dx):
+        y = problem.predict_free(x0 + dx * scale)
+        return y, y
+
+    w = jnp.broadcast_to(jnp.asarray(problem.sample_scale), problem.data.shape)
+    w = w / jnp.max(w)
+    J, pred = jax.jacfwd(output, has_aux=True)(jnp.zeros_like(x0))
+    return J / w[:, None], (pred - problem.data) / w
+
+
+_log_jacobian = eqx.filter_jit(weighted_log_jacobian)
 
 
 def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float = 0.5
@@ -341,13 +353,8 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     width = np.asarray(space.upper - space.lower)
     # signed θ0, so that x = dθ/θ0 = d log|θ| also for negative θ (α̃)
     scale = np.where(values != 0, values, np.where(width > 0, width, 1.0))
-    J, pred = _log_jacobian(problem, jnp.asarray(values), jnp.asarray(scale))
-    # residual weights: 1 for a single-loop problem; a joint problem scales each loop by
-    # its max|data| (relative to the largest), so σ is in the largest loop's units
-    w = np.broadcast_to(np.asarray(problem.sample_scale, dtype=float), (J.shape[0],))
-    w = w / np.max(w)
-    J = np.asarray(J) / w[:, None]
-    e = (np.asarray(pred) - np.asarray(problem.data)) / w
+    J, e = (np.asarray(a) for a in _log_jacobian(problem, jnp.asarray(values),
+                                                  jnp.asarray(scale)))
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(e))):
         raise ValueError("The model output or its Jacobian is not finite at these parameters; "
                          "the identifiability analysis needs a point where the model runs.")

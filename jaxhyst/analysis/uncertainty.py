@@ -26,7 +26,7 @@ import numpy as np
 
 from ..identify.local import _result_name, _run, _start_z, make_solver, predict_jit
 from ..sharding import batch_sharding, place
-from .identifiability import Z95
+from .identifiability import Z95, weighted_log_jacobian
 
 CHI2_95 = 3.841458820694124  # 95 % quantile of χ² with one degree of freedom
 
@@ -145,15 +145,7 @@ def _gn_std_errors(problem, x):
     """Gauss–Newton standard errors (SI) of the free parameters at their values x, with
     σ² = Σe²/(N − n) (full-rank problems)."""
     scale = jnp.where(x != 0, x, 1.0)
-
-    def out(dx):
-        return problem.predict_free(x + dx * scale)
-
-    w = jnp.broadcast_to(jnp.asarray(problem.sample_scale), problem.data.shape)
-    w = w / jnp.max(w)  # 1 for a single loop; per-loop weights of a joint problem
-    J, pred = jax.jacfwd(lambda dx: ((y := out(dx)), y), has_aux=True)(jnp.zeros_like(x))
-    J = J / w[:, None]
-    e = (pred - problem.data) / w
+    J, e = weighted_log_jacobian(problem, x, scale)
     N, n = J.shape
     sigma2 = jnp.sum(e**2) / (N - n)
     _, s, Vt = jnp.linalg.svd(J, full_matrices=False)
