@@ -3,7 +3,7 @@ amplitudes): joint and separate fits, the published parameters under the same mo
 the time to fit the three loops jointly against SciPy differential_evolution +
 least_squares on the same model, loss and evaluation budget.
 
-    python benchmarks/mnzn_fit.py [--variant classic|venkataraman|energy] [--png DIR]
+    python benchmarks/mnzn_fit.py [--variant classic|venkataraman|energy|pop] [--png DIR]
 
 Model: the classic (Szewczyk "dMan/dHe") JA form by default — the form of the toolbox
 whose fit the data README quotes. Loss: Σ over loops of the mean squared error in B
@@ -32,7 +32,7 @@ PUBLISHED = {"Ms": 2.607e5, "a": 5.75, "k": 4.14, "c": 1.0, "alpha": 6.4e-8}
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--variant", default="classic", choices=("classic", "venkataraman",
-                                                              "energy"))
+                                                              "energy", "pop"))
     ap.add_argument("--png", help="directory for the figures")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--part", choices=("all", "fits", "speed"), default="all",
@@ -51,7 +51,7 @@ def main():
     from jaxhyst.io import read_loops
 
     variant = {"classic": jh.ClassicJA(), "venkataraman": jh.VenkataramanJA(),
-               "energy": jh.EnergyBasedJA()}[args.variant]
+               "energy": jh.EnergyBasedJA(), "pop": jh.PopJA()}[args.variant]
     bounds = jh.Bounds.from_dict(BOUNDS)
     fixed = {n: 0.5 * sum(BOUNDS[n]) for n in STRUCTURAL}
     loops = read_loops(DATA)

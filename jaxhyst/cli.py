@@ -20,14 +20,14 @@ from pathlib import Path
 UNITS_HELP = ("Units: H A/m, I A, y m, M A/m, B T, t s, f Hz; Ms, a, k A/m; E N/m^2, "
               "Kz N/m, Mz kg, Cz N*s/m; lambda_s, alpha, c dimensionless.")
 LOCAL = ("lm", "indirect_lm", "dogleg", "lma", "tra")
-VARIANTS = ("energy", "classic", "venkataraman")
+VARIANTS = ("energy", "classic", "venkataraman", "pop")
 
 
 def _variant(name: str):
     import jaxhyst as jh
 
     return {"energy": jh.EnergyBasedJA(), "classic": jh.ClassicJA(),
-            "venkataraman": jh.VenkataramanJA()}[name]
+            "venkataraman": jh.VenkataramanJA(), "pop": jh.PopJA()}[name]
 HYBRID = ("GATR1", "GALM1", "GATR2", "GALM2", "GA")
 
 

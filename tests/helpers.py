@@ -28,8 +28,8 @@ def np_langevin(x):
 
 def np_slope(H, M, delta, p, variant="energy"):
     """dM/dH of the paper's energy-based form (SPEC §1, total chain rule), the classic
-    1986 form or Venkataraman's bulk form, written from the equations independently of
-    jaxhyst."""
+    1986 form, Venkataraman's bulk form or the sign-continuous form of Pop & Caltun,
+    written from the equations independently of jaxhyst."""
     He = H + p["alpha"] * M
     L, dL = np_langevin(He / p["a"])
     Man, dMan = p["Ms"] * L, p["Ms"] / p["a"] * dL
@@ -45,6 +45,10 @@ def np_slope(H, M, delta, p, variant="energy"):
         suppressed = (delta < 0 and diff > 0) or (delta > 0 and diff < 0)
         irr = 0.0 if suppressed else diff / (delta * k - al * diff)
         return (irr + c * dMan) / (1 + c)
+    if variant == "pop":  # no δM switch; classic χirr in Mirr, constant 1 − αc
+        Mirr = (M - c * Man) / (1 - c)
+        diff = Man - Mirr
+        return ((1 - c) * diff / (delta * k - al * diff) + c * dMan) / (1 - al * c)
     if variant == "venkataraman":  # Venkataraman 1999 eq 30, k in A/m
         diff = Man - M
         suppressed = (delta < 0 and diff > 0) or (delta > 0 and diff < 0)

@@ -134,3 +134,39 @@ class VenkataramanJA(JAVariant):
         active = (delta * D > 0) & pinning
         X = jnp.where(active, D / (delta * p.k), 0.0) + p.c * dMan
         return X / (1.0 - p.alpha * X)
+
+
+class PopJA(JAVariant):
+    """The sign-continuous form attributed to Pop & Caltun (N. C. Pop and O. F. Caltun,
+    Acta Phys. Pol. A 120 (2011) 491): M = Mirr + c·(Man − Mirr) (their eq 4), the
+    irreversible slope of the classic model written in M, and no δM switch:
+
+        dM/dH = [(1 − c)·D/((1 − c)·δ·k − α̃·D) + c·Man'] / (1 − α̃·c),   D = Man − M.
+
+    The irreversible susceptibility follows the sign of δ·D continuously: just after a
+    field reversal (δ·D < 0) it is negative instead of being switched off, so dM/dH has
+    no kink where D changes sign (the behaviour the δM rule of the other forms removes).
+    The denominator 1 − α̃·c is constant (the exact chain rule through He would give
+    1 − α̃·c·Man', as in `EnergyBasedJA`), so c = 1 (no irreversible part) reproduces
+    M = Man only when α̃ = 0.
+
+    Provenance: the paper's eq 4 is the only equation of it we could read; this closed
+    form is the one the open-source fitting tool jafit (P. Kirienko, Zubax Robotics, 2025)
+    implements as "the model described in Pop et al.". Parameters move between the two
+    unchanged (k and a in A/m; their c_r is c, their alpha is α̃). Where
+    (1 − c)·δ·k − α̃·D = 0 (c < 1) the slope is infinite; the simulation then returns
+    non-finite values, which identification treats as a failed individual.
+    """
+
+    def slope(self, H, M, delta, p: Parameters, pinning=True):
+        Man, dMan = anhysteretic(H, M, p)
+        D = Man - M
+        one_minus_c = 1.0 - p.c
+        denominator = one_minus_c * delta * p.k - p.alpha * D
+        # c = 1 is purely reversible (M = Man); without the guard D = 0 there gives 0/0
+        irreversible = _pinned_ratio(one_minus_c * D, denominator, (p.c < 1.0) & pinning)
+        return (irreversible + p.c * dMan) / (1.0 - p.alpha * p.c)
+
+    def distance_to_switch(self, H, M, delta, p: Parameters):
+        """Always 1 A/m (> 0): there is no δM switch, so the integrator never splits."""
+        return jnp.ones_like(M)
