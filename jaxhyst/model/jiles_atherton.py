@@ -163,7 +163,7 @@ class PopJA(JAVariant):
         D = Man - M
         one_minus_c = 1.0 - p.c
         denominator = one_minus_c * delta * p.k - p.alpha * D
-        # c = 1 is purely reversible (M = Man); without the guard D = 0 there gives 0/0
+        # c = 1: no irreversible part; without the guard D = 0 there would give 0/0
         irreversible = _pinned_ratio(one_minus_c * D, denominator, (p.c < 1.0) & pinning)
         return (irreversible + p.c * dMan) / (1.0 - p.alpha * p.c)
 
