@@ -158,3 +158,42 @@ def test_jacobian_linearized_residuals_have_the_same_derivatives(problem):
     zs = jnp.stack([z, 0.9 * z])
     batched = jax.jit(jax.vmap(jax.jacfwd(wrapped)))(zs)
     np.testing.assert_allclose(batched[0], J, rtol=0, atol=1e-12 * scale)
+
+
+def test_box_termination_stops_a_bound_optimum_sooner_at_the_requested_tolerance():
+    """With the optimum on a bound (here c on its upper bound) z creeps to π/2 while u
+    has long converged; the box test stops it sooner, with u and the parameters still
+    accurate to the tolerance (rtol 1e-10 of the box)."""
+    import equinox as eqx
+    import optimistix as optx
+
+    from jaxhyst.identify import z_from_u
+    from jaxhyst.identify.local import BoxTermination, jacobian_linearized, make_solver
+
+    H = 9e3 * np.sin(2 * np.pi * np.arange(80) / 80)
+    truth = jh.TABLE1_TRUE
+    x = np.asarray(truth.to_array())
+    lo, hi = 0.5 * np.abs(x), 1.5 * np.abs(x)
+    lo[jh.NAMES.index("alpha")], hi[jh.NAMES.index("alpha")] = -0.02, 0.0
+    hi[jh.NAMES.index("c")] = x[jh.NAMES.index("c")]  # the truth on the upper bound
+    bounds = jh.Bounds(jh.Parameters.from_array(lo), jh.Parameters.from_array(hi))
+    fixed = {n: float(getattr(truth, n)) for n in ("lambda_s", "E", "Kz", "Mz", "Cz")}
+    kw = dict(output="magnetization", fixed=fixed, substeps=4)
+    data = np.asarray(jh.loop_problem(H, np.ones(80), bounds, **kw).predict(truth))
+    problem = jh.loop_problem(H, data, bounds, **kw)
+    z0 = z_from_u(jnp.full(problem.space.n_free, 0.3))
+
+    def run(solver):
+        sol = optx.least_squares(jacobian_linearized(problem.residuals), solver, z0,
+                                 max_steps=300, throw=False)
+        return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
+
+    (z_plain, n_plain, ok_plain), (z_box, n_box, ok_box) = (
+        eqx.filter_jit(run)(s) for s in (make_solver("lm"), BoxTermination(make_solver("lm"))))
+    assert bool(ok_plain) and bool(ok_box)
+    assert int(n_box) < int(n_plain), (int(n_box), int(n_plain))
+    assert abs(float(u_from_z(z_box)[-1]) - 1.0) < 1e-9
+    found = np.asarray(problem.space.theta_from_u(u_from_z(z_box)))
+    free = list(problem.space.free)
+    np.testing.assert_allclose(found[free], x[free], rtol=1e-8)
+    assert float(jnp.sum(problem.residuals(z_box) ** 2)) < 1e-20

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import optimistix as optx
+from optimistix._misc import cauchy_termination
 
 from .paper_solvers import PaperLMA, PaperTRA
 from .problem import Problem, u_from_z, z_from_u
@@ -89,12 +90,61 @@ def jacobian_linearized(fn):
     return f
 
 
+class BoxTermination(optx.AbstractLeastSquaresSolver):
+    """A Gauss–Newton-family solver whose Cauchy test may also pass in box coordinates.
+
+    The solvers iterate in z with u = (1 + sin z)/2. When the optimum lies on a bound
+    (u = 0 or 1, e.g. c = 1 on the MnZn loops) z approaches ±π/2 only linearly — the
+    residuals are quadratic in z there, so each Gauss–Newton step halves the distance —
+    and Optimistix's test on the z step (|Δz| < atol + rtol·|z|) needs ~30 more steps
+    after u has converged to round-off. This wrapper stops an *accepted* step also when
+    the same test passes with u in place of z (and the usual test on the residuals
+    passes). Interior optima are unaffected (Table 1: the same median steps); on the
+    joint MnZn loops the median steps of 16 starts fell 42 → 32 (`lm`) and 200 → 55
+    (`lma`). Relies on the state of `optx.AbstractGaussNewton` (all our solvers).
+    """
+
+    inner: optx.AbstractLeastSquaresSolver
+
+    @property
+    def rtol(self):
+        return self.inner.rtol
+
+    @property
+    def atol(self):
+        return self.inner.atol
+
+    @property
+    def norm(self):
+        return self.inner.norm
+
+    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+        return self.inner.init(fn, y, args, options, f_struct, aux_struct, tags)
+
+    def step(self, fn, y, args, options, state, tags):
+        y_new, new_state, aux = self.inner.step(fn, y, args, options, state, tags)
+        accepted = (new_state.num_accepted_steps > state.num_accepted_steps) & ~state.first_step
+        u_new = u_from_z(y_new)
+        residual = new_state.f_info.residual
+        in_box = cauchy_termination(self.rtol, self.atol, self.norm, u_new,
+                                    u_new - u_from_z(y), residual,
+                                    residual - state.f_info.residual)
+        terminate = new_state.terminate | (accepted & in_box)
+        return y_new, eqx.tree_at(lambda s: s.terminate, new_state, terminate), aux
+
+    def terminate(self, fn, y, args, options, state, tags):
+        return self.inner.terminate(fn, y, args, options, state, tags)
+
+    def postprocess(self, fn, y, aux, args, options, state, tags, result):
+        return self.inner.postprocess(fn, y, aux, args, options, state, tags, result)
+
+
 def _run(problem: Problem, solver, z0, max_steps: int):
     """One solve; returns only arrays (value, result, steps, cost) so that it vmaps
     (Optimistix issue #63: a whole Solution does not)."""
     sol = optx.least_squares(
-        jacobian_linearized(problem.residuals), solver, z0, max_steps=max_steps,
-        throw=False, options={"jac": "fwd"},
+        jacobian_linearized(problem.residuals), BoxTermination(solver), z0,
+        max_steps=max_steps, throw=False, options={"jac": "fwd"},
     )  # fmt: skip
     z = sol.value
     cost = jnp.sum(problem.residuals(z) ** 2)
