@@ -34,7 +34,8 @@ SOLVERS = ("lm", "indirect_lm", "dogleg", "lma", "tra")
 
 def make_solver(name: str, rtol: float = 1e-10, atol: float = 1e-12):
     """An Optimistix least-squares solver by name (see module table). ``rtol``/``atol``
-    are Optimistix's Cauchy termination tolerances on z and the cost."""
+    are Optimistix's Cauchy termination tolerances on the step (in z, or in box
+    coordinates u: `BoxTermination`) and on the residuals."""
     if name == "lm":
         # Optimistix's LM shrinks its damping λ = 1/step size only when the step did
         # better than 0.99 of its predicted reduction (Gould et al.'s constants). Our
