@@ -19,6 +19,8 @@ import time
 
 import numpy as np
 
+from jaxhyst.cli import VARIANTS, variant_from_name
+
 sys.path.insert(0, os.path.dirname(__file__))
 
 DATA = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data",
@@ -31,8 +33,7 @@ PUBLISHED = {"Ms": 2.607e5, "a": 5.75, "k": 4.14, "c": 1.0, "alpha": 6.4e-8}
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--variant", default="classic", choices=("classic", "venkataraman",
-                                                              "energy", "pop"))
+    ap.add_argument("--variant", default="classic", choices=VARIANTS)
     ap.add_argument("--png", help="directory for the figures")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--part", choices=("all", "fits", "speed"), default="all",
@@ -50,8 +51,7 @@ def main():
     from jaxhyst.identify.joint import NO_ACTUATOR, STRUCTURAL
     from jaxhyst.io import read_loops
 
-    variant = {"classic": jh.ClassicJA(), "venkataraman": jh.VenkataramanJA(),
-               "energy": jh.EnergyBasedJA(), "pop": jh.PopJA()}[args.variant]
+    variant = variant_from_name(args.variant)
     bounds = jh.Bounds.from_dict(BOUNDS)
     fixed = {n: 0.5 * sum(BOUNDS[n]) for n in STRUCTURAL}
     loops = read_loops(DATA)

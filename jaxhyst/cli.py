@@ -20,14 +20,17 @@ from pathlib import Path
 UNITS_HELP = ("Units: H A/m, I A, y m, M A/m, B T, t s, f Hz; Ms, a, k A/m; E N/m^2, "
               "Kz N/m, Mz kg, Cz N*s/m; lambda_s, alpha, c dimensionless.")
 LOCAL = ("lm", "indirect_lm", "dogleg", "lma", "tra")
-VARIANTS = ("energy", "classic", "venkataraman", "pop")
+# command-line name → jaxhyst class (named, so that --help need not import jax)
+VARIANT_CLASSES = {"energy": "EnergyBasedJA", "classic": "ClassicJA",
+                   "venkataraman": "VenkataramanJA", "pop": "PopJA"}
+VARIANTS = tuple(VARIANT_CLASSES)
 
 
-def _variant(name: str):
+def variant_from_name(name: str):
+    """The `JAVariant` instance for a command-line name (one of `VARIANTS`)."""
     import jaxhyst as jh
 
-    return {"energy": jh.EnergyBasedJA(), "classic": jh.ClassicJA(),
-            "venkataraman": jh.VenkataramanJA(), "pop": jh.PopJA()}[name]
+    return getattr(jh, VARIANT_CLASSES[name])()
 HYBRID = ("GATR1", "GALM1", "GATR2", "GALM2", "GA")
 
 
@@ -149,7 +152,7 @@ def _simulate(args) -> int:
     params = _params(args.params or args.preset)
     actuator = _actuator(args.actuator)
     drive, what = _drive_from_args(args, actuator)
-    sim = jh.simulate(params, actuator, drive, variant=_variant(args.variant),
+    sim = jh.simulate(params, actuator, drive, variant=variant_from_name(args.variant),
                       substeps=args.substeps)
     y = sim.observed("y")
     summary = {
@@ -224,7 +227,7 @@ def build_problem(spec: dict):
     ids = [lp.index for lp in loops]
     bounds = bounds_from_json(spec["bounds"])
     actuator = jh.Actuator(**spec["actuator"])
-    variant = _variant(spec.get("variant", "energy"))
+    variant = variant_from_name(spec.get("variant", "energy"))
     fixed = dict(spec.get("fixed") or {})
     if spec.get("joint"):
         out = _loop_signal(spec, loops[0], spec.get("output"))
