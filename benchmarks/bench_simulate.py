@@ -110,7 +110,8 @@ def bench_loops(P_list, spp_list, numpy_individuals=2):
         drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=spp)
         H = np.asarray(drive.H)
         T = len(H)
-        h = drive.dt / 2
+        h = float(drive.dt) / 2
+        Ar = float(jh.ACTUATOR1.Ar)
         for P in P_list:
             X = population(P)
             mats = [structural_matrices(x[7], x[8], x[9], h) for x in X]
@@ -118,14 +119,14 @@ def bench_loops(P_list, spp_list, numpy_individuals=2):
             Gs = np.stack([m[1] for m in mats])
             Y = np.zeros((P, T))
             t0 = time.perf_counter()
-            fast_population(X, jh.ACTUATOR1.Ar, H, h, 2, Phis, Gs, Y)
+            fast_population(X, Ar, H, h, 2, Phis, Gs, Y)
             first = time.perf_counter() - t0
 
             def serial():
                 for j in range(P):
-                    fast(X[j], jh.ACTUATOR1.Ar, H, h, 2, Phis[j], Gs[j], Y[j])
+                    fast(X[j], Ar, H, h, 2, Phis[j], Gs[j], Y[j])
 
-            t_par = median_time(lambda: fast_population(X, jh.ACTUATOR1.Ar, H, h, 2, Phis,
+            t_par = median_time(lambda: fast_population(X, Ar, H, h, 2, Phis,
                                                         Gs, Y))
             t_ser = median_time(serial)
             rows.append(dict(impl="numba loop, all cores", spp=spp, P=P, T=T, seconds=t_par,
@@ -136,7 +137,7 @@ def bench_loops(P_list, spp_list, numpy_individuals=2):
             k = min(P, numpy_individuals)
             t0 = time.perf_counter()
             for j in range(k):
-                simulate_loop(X[j], jh.ACTUATOR1.Ar, H, h, 2, Phis[j], Gs[j], Y[j])
+                simulate_loop(X[j], Ar, H, h, 2, Phis[j], Gs[j], Y[j])
             t_np = (time.perf_counter() - t0) / k * P
             rows.append(dict(impl=f"numpy loop (extrapolated from {k})", spp=spp, P=P, T=T,
                              seconds=t_np, ns=t_np / (P * T) * 1e9, compile=float("nan")))

@@ -1,10 +1,11 @@
 """jaxhyst: differentiable Jiles–Atherton hysteresis of magnetostrictive actuators in JAX.
 
-Importing the package turns on float64 and JAX's persistent compilation cache
-(see `jaxhyst._config`).
+Importing the package turns on float64 and compiles CPU time loops as single kernels
+(see `jaxhyst._config`); JAX's persistent compilation cache is one call,
+`jaxhyst.enable_compilation_cache()`.
 """
 
-from . import _config  # noqa: F401  (x64 + compilation cache, before anything traces)
+from ._config import cpu_loop_kernels, enable_compilation_cache  # (first: x64)
 from .actuator import ACTUATOR1, ACTUATOR2, Actuator
 from .drive import Drive, drive_from_record, sinusoidal_current, sinusoidal_field
 from .model import (
@@ -27,6 +28,8 @@ from .params import NAMES, TABLE1_BOUNDS, TABLE1_TRUE, TABLE3, UNITS, Bounds, Pa
 __version__ = "0.1.0"
 
 __all__ = [
+    "cpu_loop_kernels",
+    "enable_compilation_cache",
     "ACTUATOR1",
     "ACTUATOR2",
     "NAMES",

@@ -1,27 +1,84 @@
-"""Process-wide JAX settings that jaxhyst needs, applied once on import.
+"""Process-wide JAX settings that jaxhyst needs, applied once on import — and the ones it
+offers but does not impose.
 
-- float64 everywhere: the parameters span 1e-3 … 1e10 and the identification reaches
-  costs of 1e-25, neither of which survives float32.
-- JAX's persistent compilation cache, so that a later process's first call of a jitted
-  simulation or solver is loaded from disk instead of recompiled (compiles take seconds).
-  The cache lives in ``$JAXHYST_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/jaxhyst/xla``,
-  else ``~/.cache/jaxhyst/xla``. Set ``JAXHYST_CACHE_DIR=off`` to leave JAX's cache
-  setting untouched (e.g. when your application manages it). If the user already set
-  ``jax_compilation_cache_dir`` themselves, it is respected.
+Applied on import:
+
+- **float64** (``jax_enable_x64``): the parameters span 1e-3 … 1e10 and identification
+  reaches normalised costs of 1e-25, neither of which survives float32.
+- **Time loops compiled as one kernel on the CPU.** XLA:CPU runs a loop body as a
+  sequence of kernels, ~0.1 µs each, unless the loop is "small", which it then compiles
+  into a single function (its `SmallWhileLoopHoistingPass`). The default size limit
+  (1 KiB of memory traffic per iteration) leaves out the Jiles–Atherton time loop, which
+  then runs ~5× slower. jaxhyst raises the limit to 256 KiB by adding
+  ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=262144`` to
+  ``XLA_FLAGS``. This can only take effect before JAX creates its CPU backend (the first
+  computation of the process), affects only CPU loops whose iterations touch less than
+  256 KiB, and is skipped when ``XLA_FLAGS`` already sets ``xla_backend_extra_options``
+  or ``JAXHYST_XLA_FLAGS=off``. `cpu_loop_kernels` says whether it is in effect.
+
+Offered, not imposed: JAX's persistent compilation cache (`enable_compilation_cache`),
+which the ``jaxhyst`` command turns on.
 """
 
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import jax
 
 jax.config.update("jax_enable_x64", True)
 
+LOOP_THRESHOLD_BYTES = 4194304
+_LOOP_OPTION = f"xla_cpu_small_while_loop_byte_threshold={LOOP_THRESHOLD_BYTES}"
+_loop_flag_state = "not applied"
+
+
+def _backends_initialized() -> bool:
+    """Whether JAX has created its backends already (then XLA_FLAGS is read)."""
+    try:  # internal, tested with jax 0.10 – 0.11; assume "no" if it moves
+        from jax._src import xla_bridge
+
+        return bool(xla_bridge.backends_are_initialized())
+    except (ImportError, AttributeError):
+        return False
+
+
+def _apply_loop_flag() -> None:
+    global _loop_flag_state
+    if os.environ.get("JAXHYST_XLA_FLAGS", "").strip().lower() in ("off", "0", "false", "no"):
+        _loop_flag_state = "disabled by JAXHYST_XLA_FLAGS"
+        return
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_backend_extra_options" in flags:
+        _loop_flag_state = ("in effect (set by the user)" if _LOOP_OPTION.split("=")[0] in flags
+                            else "not applied: XLA_FLAGS sets xla_backend_extra_options")
+        return
+    if _backends_initialized():
+        _loop_flag_state = "not applied: JAX was already running when jaxhyst was imported"
+        warnings.warn(
+            "jaxhyst was imported after JAX started computing, so its CPU loop setting "
+            "could not be applied and simulations run ~5x slower on the CPU; import "
+            "jaxhyst first, or set XLA_FLAGS=--xla_backend_extra_options="
+            f"{_LOOP_OPTION} before starting Python.", stacklevel=3)
+        return
+    os.environ["XLA_FLAGS"] = (flags + " --xla_backend_extra_options=" + _LOOP_OPTION).strip()
+    _loop_flag_state = "in effect"
+
+
+def cpu_loop_kernels() -> str:
+    """Whether jaxhyst's XLA:CPU loop setting is in effect (see the module docstring)."""
+    return _loop_flag_state
+
+
+_apply_loop_flag()
+
 
 def cache_dir() -> Path | None:
-    """The directory used for JAX's persistent compilation cache, or None when disabled."""
+    """The directory for JAX's persistent compilation cache: ``$JAXHYST_CACHE_DIR`` if set
+    (``off`` disables it), else ``$XDG_CACHE_HOME/jaxhyst/xla``, else
+    ``~/.cache/jaxhyst/xla``."""
     env = os.environ.get("JAXHYST_CACHE_DIR")
     if env is not None:
         if env.strip().lower() in ("", "0", "off", "none", "false"):
@@ -31,18 +88,23 @@ def cache_dir() -> Path | None:
     return Path(base) / "jaxhyst" / "xla"
 
 
-def _enable_compilation_cache() -> None:
-    directory = cache_dir()
-    if directory is None or jax.config.jax_compilation_cache_dir:
-        return
+def enable_compilation_cache(directory: str | os.PathLike | None = None) -> Path | None:
+    """Turn on JAX's persistent compilation cache, so that a later process's first call
+    of a jitted simulation or solver is loaded from disk instead of recompiled (compiles
+    take seconds). ``directory`` defaults to `cache_dir` (``JAXHYST_CACHE_DIR=off``:
+    nothing is done). A cache directory the user already configured in JAX is respected.
+    Affects every JAX program of the process. Returns the directory in use, or None."""
+    if jax.config.jax_compilation_cache_dir:
+        return Path(jax.config.jax_compilation_cache_dir)
+    target = Path(directory).expanduser() if directory is not None else cache_dir()
+    if target is None:
+        return None
     try:
-        directory.mkdir(parents=True, exist_ok=True)
+        target.mkdir(parents=True, exist_ok=True)
     except OSError:  # read-only home etc.: run without a cache rather than fail
-        return
-    jax.config.update("jax_compilation_cache_dir", str(directory))
-    # Cache even small/fast compilations: our scans compile in ~1-30 s each.
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(target))
+    # Cache even small/fast compilations: our scans compile in ~1-10 s each.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-
-
-_enable_compilation_cache()
+    return target

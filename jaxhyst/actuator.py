@@ -2,9 +2,28 @@
 
 from __future__ import annotations
 
-import math
-
 import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def _concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+class _Label(str):
+    """A name that is metadata only: all labels compare equal and hash alike, so that
+    actuators differing only in name share compiled programs."""
+
+    def __eq__(self, other):
+        return isinstance(other, _Label)
+
+    def __ne__(self, other):
+        return not self.__eq__(other)
+
+    def __hash__(self):
+        return 0
 
 
 class Actuator(eqx.Module):
@@ -17,24 +36,43 @@ class Actuator(eqx.Module):
       given as fields directly (Actuator2).
     - ``Hb``: DC bias field (permanent magnets), A/m.
     - ``name``: free text for reports.
+
+    The numbers are JAX arrays (data, not compile-time constants): a new actuator does
+    not recompile a jitted simulation, and ``jax.grad`` works with respect to them.
+    Concrete values are checked on construction.
     """
 
-    Ar: float = eqx.field(static=True)
-    lr: float = eqx.field(static=True)
-    n: float | None = eqx.field(static=True, default=None)
-    Hb: float = eqx.field(static=True, default=0.0)
-    name: str = eqx.field(static=True, default="actuator")
+    Ar: jax.Array
+    lr: jax.Array
+    n: jax.Array | None
+    Hb: jax.Array
+    name: str = eqx.field(static=True)
 
-    def __check_init__(self):
-        for field, value in (("Ar", self.Ar), ("lr", self.lr)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(
-                    f"Actuator.{field} must be a finite number > 0 (SI); got {value!r}."
-                )
-        if self.n is not None and not (math.isfinite(self.n) and self.n > 0):
-            raise ValueError(f"Actuator.n (turns per metre) must be > 0 or None; got {self.n!r}.")
-        if not math.isfinite(self.Hb):
-            raise ValueError(f"Actuator.Hb (bias field, A/m) must be finite; got {self.Hb!r}.")
+    def __init__(self, Ar, lr, n=None, Hb=0.0, name: str = "actuator"):
+        for field, value, rule in (("Ar", Ar, "> 0 (m^2)"), ("lr", lr, "> 0 (m)"),
+                                   ("n", n, "> 0 (1/m) or None"), ("Hb", Hb, "finite (A/m)")):
+            if value is None or not _concrete(value):
+                continue
+            try:
+                v = np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"Actuator.{field} must be a number {rule}; got "
+                                 f"{value!r}.") from None
+            ok = np.all(np.isfinite(v)) and (field == "Hb" or np.all(v > 0))
+            if not ok:
+                raise ValueError(f"Actuator.{field} must be a finite number {rule}; got "
+                                 f"{value!r}.")
+        self.Ar = jnp.asarray(Ar, dtype=jnp.float64)
+        self.lr = jnp.asarray(lr, dtype=jnp.float64)
+        self.n = None if n is None else jnp.asarray(n, dtype=jnp.float64)
+        self.Hb = jnp.asarray(Hb, dtype=jnp.float64)
+        self.name = _Label(name)
+
+    def to_dict(self) -> dict:
+        """Plain ``{Ar, lr, n, Hb, name}`` (floats) of a concrete actuator."""
+        return {"Ar": float(self.Ar), "lr": float(self.lr),
+                "n": None if self.n is None else float(self.n), "Hb": float(self.Hb),
+                "name": str(self.name)}
 
 
 #: Hebei University of Technology actuator (paper §5.1); also used for the Table 1 study.

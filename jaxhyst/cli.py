@@ -77,7 +77,7 @@ def _actuator(spec: str):
 
 
 def _actuator_to_json(a) -> dict:
-    return {"Ar": a.Ar, "lr": a.lr, "n": a.n, "Hb": a.Hb, "name": a.name}
+    return a.to_dict()
 
 
 def _bounds(spec: str):

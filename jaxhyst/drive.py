@@ -9,8 +9,6 @@ H = 0 and/or whole periods whose transient is discarded.
 
 from __future__ import annotations
 
-import math
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -23,6 +21,11 @@ def _concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
+#: Largest relative deviation of a time step from the mean for a drive to count as
+#: uniformly sampled (the structural step then corrects each step to second order).
+UNIFORM_TOLERANCE = 1e-4
+
+
 class Drive(eqx.Module):
     """Sampled applied field.
 
@@ -30,25 +33,31 @@ class Drive(eqx.Module):
     - ``t``: sample times, s, shape (T,), strictly increasing.
     - ``H``: applied field at those times, A/m, shape (T,) (already including any bias).
     - ``run_in``: number of leading samples that are simulated but not observed.
+    - ``uniform``: whether the samples are uniformly spaced (every step within 1e-4 of
+      the mean step). ``None`` (default) detects it from concrete ``t``; a traced ``t``
+      (a drive built inside ``jit``/``grad``) counts as non-uniform unless you say
+      ``uniform=True``. The drive builders set it.
 
-    ``dt`` (static) is the common time step when the samples are uniformly spaced (to a
-    relative 1e-9), else ``None``; uniform drives let the structural discretization be
-    computed once instead of per interval. ``detect_uniform=False`` keeps ``dt = None``
-    (drives stacked for a vmap over loops must share this static field).
+    ``t`` and ``H`` are data: a new frequency, amplitude or jitter in ``t`` does not
+    recompile a jitted simulation, and drives of equal length stack for ``vmap``. Only
+    the length, ``run_in`` and ``uniform`` are compile-time structure. Uniform drives
+    share one structural discretization (one matrix exponential) instead of one per
+    step.
     """
 
     t: jax.Array
     H: jax.Array
     run_in: int = eqx.field(static=True, default=0)
-    dt: float | None = eqx.field(static=True, default=None)
+    uniform: bool = eqx.field(static=True, default=False)
 
-    def __init__(self, t, H, run_in: int = 0, dt: float | None = None,
-                 detect_uniform: bool = True):
+    def __init__(self, t, H, run_in: int = 0, uniform: bool | None = None):
         t = jnp.asarray(t, dtype=jnp.float64)
         H = jnp.asarray(H, dtype=jnp.float64)
         if t.ndim != 1 or H.ndim != 1:
             raise ValueError(
-                f"Drive needs 1-D t and H (one sample per entry); got shapes {t.shape}, {H.shape}."
+                f"Drive needs 1-D t and H (one sample per entry); got shapes {t.shape}, "
+                f"{H.shape}. (A batch of drives: build each, then stack them with "
+                "jax.tree.map(jnp.stack, ...).)"
             )
         if t.shape != H.shape:
             raise ValueError(
@@ -63,17 +72,19 @@ class Drive(eqx.Module):
                 f"Drive run_in={run_in} must be in [0, {t.shape[0] - 2}] so that at least "
                 "two samples are observed."
             )
-        if _concrete(t) and _concrete(H):
-            tn, Hn = np.asarray(t), np.asarray(H)
-            if not np.all(np.isfinite(tn)):
-                raise ValueError(
-                    "Drive time t contains NaN or inf; remove or repair those samples."
-                )
+        if _concrete(H):
+            Hn = np.asarray(H)
             if not np.all(np.isfinite(Hn)):
                 bad = np.flatnonzero(~np.isfinite(Hn))[:5]
                 raise ValueError(
                     f"Drive field H contains NaN or inf at samples {bad.tolist()}; "
                     "remove or interpolate those samples."
+                )
+        if _concrete(t):
+            tn = np.asarray(t)
+            if not np.all(np.isfinite(tn)):
+                raise ValueError(
+                    "Drive time t contains NaN or inf; remove or repair those samples."
                 )
             steps = np.diff(tn)
             if np.any(steps <= 0):
@@ -82,29 +93,40 @@ class Drive(eqx.Module):
                     f"Drive time must be strictly increasing; t[{i + 1}] = {tn[i + 1]} <= "
                     f"t[{i}] = {tn[i]}. Sort the samples or drop duplicates."
                 )
-            if dt is None and detect_uniform:
-                mean = (tn[-1] - tn[0]) / (len(tn) - 1)
-                if np.max(np.abs(steps - mean)) <= 1e-9 * mean:
-                    dt = float(mean)
+            mean = (tn[-1] - tn[0]) / (len(tn) - 1)
+            is_uniform = bool(np.max(np.abs(steps - mean)) <= UNIFORM_TOLERANCE * mean)
+            if uniform is None:
+                uniform = is_uniform
+            elif uniform and not is_uniform:
+                raise ValueError(
+                    "Drive(uniform=True): the time steps deviate from their mean by more "
+                    f"than {UNIFORM_TOLERANCE:g} relative; leave uniform unset."
+                )
         self.t = t
         self.H = H
         self.run_in = run_in
-        self.dt = None if dt is None else float(dt)
+        self.uniform = bool(uniform)
 
     @property
     def n_samples(self) -> int:
-        return int(self.t.shape[0])
+        return int(self.t.shape[-1])
 
     @property
     def n_observed(self) -> int:
         return self.n_samples - self.run_in
+
+    @property
+    def dt(self) -> jax.Array:
+        """Mean time step (t[-1] − t[0])/(T − 1), s."""
+        return (self.t[..., -1] - self.t[..., 0]) / (self.n_samples - 1)
 
     def observed(self, signal: jax.Array) -> jax.Array:
         """The observed part (after the run-in) of a per-sample signal, along axis -1."""
         return signal[..., self.run_in :]
 
     @classmethod
-    def from_current(cls, t, current, actuator: Actuator, run_in: int = 0) -> Drive:
+    def from_current(cls, t, current, actuator: Actuator, run_in: int = 0,
+                     uniform: bool | None = None) -> Drive:
         """H = n·I + Hb from a coil current I (A), using the actuator's n (1/m) and Hb (A/m)."""
         if actuator.n is None:
             raise ValueError(
@@ -112,7 +134,7 @@ class Drive(eqx.Module):
                 "(Drive(t, H)) or set Actuator.n."
             )
         current = jnp.asarray(current, dtype=jnp.float64)
-        return cls(t, actuator.n * current + actuator.Hb, run_in=run_in)
+        return cls(t, actuator.n * current + actuator.Hb, run_in=run_in, uniform=uniform)
 
 
 def drive_from_record(t, H, *, run_in_periods: int = 1, ramp_fraction: float = 0.25) -> Drive:
@@ -156,10 +178,19 @@ def drive_from_record(t, H, *, run_in_periods: int = 1, ramp_fraction: float = 0
     return Drive(t_all, H_all, run_in=n_pre)
 
 
+def _check_number(name, value, rule, unit):
+    """One-line error for a concrete non-finite (or out-of-range) builder argument."""
+    if not _concrete(value):
+        return
+    v = np.asarray(value, dtype=np.float64)
+    if v.ndim or not np.isfinite(v) or not rule(float(v)):
+        raise ValueError(f"{name} must be a finite number{unit}; got {value!r}.")
+
+
 def sinusoidal_field(
-    frequency: float,
-    amplitude: float,
-    offset: float = 0.0,
+    frequency,
+    amplitude,
+    offset=0.0,
     *,
     periods: float = 1.0,
     samples_per_period: int = 200,
@@ -176,42 +207,48 @@ def sinusoidal_field(
        after a ramp differs from the steady state; later periods agree to ~1e-11).
 
     Both form the drive's ``run_in``. Samples are uniform with dt = 1/(f·samples_per_period).
+    ``frequency`` (Hz), ``amplitude`` and ``offset`` (A/m) may be traced (differentiate
+    through them, vmap over them); the sample counts are structure.
     """
-    if not (math.isfinite(frequency) and frequency > 0):
-        raise ValueError(f"frequency must be a finite number > 0 Hz; got {frequency!r}.")
-    if not (math.isfinite(amplitude) and math.isfinite(offset)):
-        raise ValueError("amplitude and offset must be finite.")
-    if int(samples_per_period) < 4:
-        raise ValueError(f"samples_per_period must be >= 4; got {samples_per_period!r}.")
-    if periods <= 0 or run_in_periods < 0 or ramp_periods < 0:
-        raise ValueError("periods must be > 0, run_in_periods and ramp_periods >= 0.")
+    _check_number("frequency", frequency, lambda v: v > 0, " > 0 Hz")
+    _check_number("amplitude", amplitude, lambda v: True, " (A/m)")
+    _check_number("offset", offset, lambda v: True, " (A/m)")
+    if int(samples_per_period) != samples_per_period or int(samples_per_period) < 4:
+        raise ValueError(f"samples_per_period must be an integer >= 4; got "
+                         f"{samples_per_period!r}.")
+    if not (periods > 0 and run_in_periods >= 0 and ramp_periods >= 0):
+        raise ValueError("periods must be > 0, run_in_periods and ramp_periods >= 0; got "
+                         f"{periods!r}, {run_in_periods!r}, {ramp_periods!r}.")
     spp = int(samples_per_period)
-    dt = 1.0 / (frequency * spp)
     n_ramp = int(round(ramp_periods * spp))
     n_run = int(run_in_periods) * spp
     n_obs = int(round(periods * spp)) + 1  # closed loop: include the end point
     k = np.arange(-(n_ramp + n_run), n_obs)
-    t = k * dt
-    H = offset + amplitude * np.sin(2 * np.pi * frequency * t)
+    phase = 2 * np.pi * k / spp  # 2π f t, exact in the sample index
+    frequency = jnp.asarray(frequency, dtype=jnp.float64)
+    t = jnp.asarray(k, dtype=jnp.float64) / (frequency * spp)
+    H = offset + amplitude * jnp.sin(jnp.asarray(phase))
     if n_ramp:  # whole run-in periods: the sinusoid there starts at phase 0, H = offset
-        H[:n_ramp] = H[n_ramp] * np.arange(n_ramp) / n_ramp
-    return Drive(t, H, run_in=n_ramp + n_run, dt=dt)
+        H = H.at[:n_ramp].set(H[n_ramp] * jnp.arange(n_ramp) / n_ramp)
+    return Drive(t, H, run_in=n_ramp + n_run, uniform=True)
 
 
 def sinusoidal_current(
-    frequency: float,
-    amplitude: float,
-    offset: float,
+    frequency,
+    amplitude,
+    offset,
     actuator: Actuator,
     **kwargs,
 ) -> Drive:
     """I(t) = offset + amplitude·sin(2π f t) (A) through the actuator's coil: H = n·I + Hb.
 
     Keyword arguments are those of `sinusoidal_field`. The paper's Table 1 drive is
-    ``sinusoidal_current(100.0, 0.77, 1.53, ACTUATOR1)``.
+    ``sinusoidal_current(100.0, 0.77, 1.53, ACTUATOR1)``. Traceable like it.
     """
     if actuator.n is None:
         raise ValueError(f"{actuator.name} has no turns-per-metre n; use sinusoidal_field.")
+    _check_number("amplitude", amplitude, lambda v: True, " (A)")
+    _check_number("offset", offset, lambda v: True, " (A)")
     return sinusoidal_field(
         frequency,
         actuator.n * amplitude,

@@ -65,7 +65,7 @@ def reference_simulation(params: jh.Parameters, actuator: jh.Actuator, drive: jh
     p = params.to_dict()
     t = np.asarray(drive.t)
     H = np.asarray(drive.H)
-    Ar = actuator.Ar
+    Ar = float(actuator.Ar)
     state = np.zeros(3)
     Ms, ls = p["Ms"], p["lambda_s"]
     out = np.zeros((len(t), 3))

@@ -185,13 +185,9 @@ def _pad_drives(drives: Sequence[Drive]):
         ts.append(t)
         Hs.append(H)
         mask[i, : d.n_observed] = True
-    uniform = [np.max(np.abs(np.diff(t) - np.diff(t).mean())) <= 1e-9 * np.diff(t).mean()
-               for t in ts]
-    dts = {round(float(np.diff(t).mean()), 15) for t in ts}
-    dt = float(np.diff(ts[0]).mean()) if all(uniform) and len(dts) == 1 else None
-    # with differing steps every loop takes the per-interval path (one static structure)
-    batched = [Drive(t, H, run_in=R, dt=dt, detect_uniform=False)
-               for t, H in zip(ts, Hs, strict=True)]
+    # each loop keeps its own time step (t is data); the batch is uniform if every loop is
+    uniform = all(d.uniform for d in drives)
+    batched = [Drive(t, H, run_in=R, uniform=uniform) for t, H in zip(ts, Hs, strict=True)]
     drive = jax.tree.map(lambda *xs: jnp.stack(xs), *batched)
     return drive, mask
 

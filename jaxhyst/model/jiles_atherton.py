@@ -1,9 +1,12 @@
 """Jiles–Atherton magnetization: pluggable forms of the slope dM/dH.
 
-A variant is a small, final ``equinox.Module`` with one method, ``slope(H, M, delta, p)``,
-returning dM/dH (dimensionless) at applied field ``H`` (A/m) and total magnetization ``M``
-(A/m) while the field moves in direction ``delta`` (±1). The integrator in
-`jaxhyst.model.simulate` owns the loop; a new variant plugs in without touching it.
+A variant is a small, final ``equinox.Module`` with one required method,
+``slope(H, M, delta, p)``, returning dM/dH (dimensionless) at applied field ``H`` (A/m) and
+total magnetization ``M`` (A/m) while the field moves in direction ``delta`` (±1). The
+integrator in `jaxhyst.model.magnetization` owns the loop; a new variant plugs in without
+touching it. The built-in forms derive from `AnhystereticForm`, which evaluates the
+Langevin function once per call of `JAVariant.evaluate` (slope and switch distance
+together, the integrator's hot path).
 
 State is the *total* magnetization M. With He = H + α̃·M every quantity below is an
 explicit function of (H, M), so no implicit equation has to be solved per step.
@@ -12,8 +15,10 @@ explicit function of (H, M), so no implicit equation has to be solved per step.
 from __future__ import annotations
 
 import abc
+from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 from ..params import Parameters
@@ -40,7 +45,13 @@ class JAVariant(eqx.Module):
     exactly up to the point where δM switches on after a field reversal (a kink in dM/dH).
     ``distance_to_switch`` returns δ·(Man − M): the irreversible term is active where it
     is > 0.
+
+    ``parameters`` names the `Parameters` fields the slope depends on (the derivative rule
+    of the time loop differentiates with respect to those only); a variant that reads
+    other fields must list them.
     """
+
+    parameters: ClassVar[tuple[str, ...]] = ("Ms", "a", "k", "alpha", "c")
 
     @abc.abstractmethod
     def slope(self, H, M, delta, p: Parameters, pinning=True):
@@ -51,6 +62,16 @@ class JAVariant(eqx.Module):
         Man, _ = anhysteretic(H, M, p)
         return delta * (Man - M)
 
+    def evaluate(self, H, M, delta, p: Parameters, pinning=True):
+        """(dM/dH, distance_to_switch, d(distance)/dH along the path M(H) of that slope):
+        dimensionless, A/m and dimensionless. Generic version by forward differentiation
+        of `distance_to_switch`; `AnhystereticForm` computes all three from one
+        evaluation of the anhysteretic."""
+        s = self.slope(H, M, delta, p, pinning)
+        d, rate = jax.jvp(lambda H, M: self.distance_to_switch(H, M, delta, p), (H, M),
+                          (jnp.ones_like(H), jnp.ones_like(M) * s))
+        return s, d, rate
+
     def irreversible_magnetization(self, H, M, p: Parameters):
         """Mirr (A/m) implied by the state; default Mirr = (M − c·Man)/(1 − c) (eqs 4–5)."""
         Man, _ = anhysteretic(H, M, p)
@@ -59,7 +80,26 @@ class JAVariant(eqx.Module):
         return jnp.where(reversible_only, M, (M - p.c * Man) / safe)
 
 
-class EnergyBasedJA(JAVariant):
+class AnhystereticForm(JAVariant):
+    """A form whose slope is an explicit function of M, δ and the anhysteretic (Man and
+    Man' = dMan/dHe at He = H + α̃·M): implement `slope_from_anhysteretic`."""
+
+    @abc.abstractmethod
+    def slope_from_anhysteretic(self, M, delta, p: Parameters, Man, dMan, pinning=True):
+        """dM/dH given Man (A/m) and dMan/dHe (1) at the current (H, M)."""
+
+    def slope(self, H, M, delta, p: Parameters, pinning=True):
+        Man, dMan = anhysteretic(H, M, p)
+        return self.slope_from_anhysteretic(M, delta, p, Man, dMan, pinning)
+
+    def evaluate(self, H, M, delta, p: Parameters, pinning=True):
+        Man, dMan = anhysteretic(H, M, p)
+        s = self.slope_from_anhysteretic(M, delta, p, Man, dMan, pinning)
+        # d/dH of δ·(Man − M) along M(H): dMan/dH = Man'·(1 + α̃·s)
+        return s, delta * (Man - M), delta * (dMan * (1.0 + p.alpha * s) - s)
+
+
+class EnergyBasedJA(AnhystereticForm):
     """The paper's form (eqs 1–5; Calkins, Smith & Flatau 2000), differentiated exactly.
 
     With M = (1 − c)·Mirr + c·Man(H + α̃M) (eqs 4–5) and eq 3 for dMirr/dH,
@@ -74,8 +114,7 @@ class EnergyBasedJA(JAVariant):
     pinning term is overwhelmed) the irreversible part is taken as 0 rather than negative.
     """
 
-    def slope(self, H, M, delta, p: Parameters, pinning=True):
-        Man, dMan = anhysteretic(H, M, p)
+    def slope_from_anhysteretic(self, M, delta, p: Parameters, Man, dMan, pinning=True):
         D = Man - M
         one_minus_c = 1.0 - p.c
         denominator = one_minus_c * delta * p.k - p.alpha * D
@@ -84,7 +123,7 @@ class EnergyBasedJA(JAVariant):
         return (irreversible + p.c * dMan) / (1.0 - p.alpha * p.c * dMan)
 
 
-class ClassicJA(JAVariant):
+class ClassicJA(AnhystereticForm):
     """The classic Jiles–Atherton form with reversible part Mrev = c·(Man − M):
 
         dM/dH = [δM·(Man − M)/(δ·k − α̃·(Man − M)) + c·Man'] / (1 + c),
@@ -100,8 +139,7 @@ class ClassicJA(JAVariant):
     hysteretic (irreversible) part.
     """
 
-    def slope(self, H, M, delta, p: Parameters, pinning=True):
-        Man, dMan = anhysteretic(H, M, p)
+    def slope_from_anhysteretic(self, M, delta, p: Parameters, Man, dMan, pinning=True):
         D = Man - M
         denominator = delta * p.k - p.alpha * D
         active = (delta * D > 0) & (delta * denominator > 0) & pinning
@@ -113,7 +151,7 @@ class ClassicJA(JAVariant):
         return (1.0 + p.c) * M - p.c * Man
 
 
-class VenkataramanJA(JAVariant):
+class VenkataramanJA(AnhystereticForm):
     """The bulk ferromagnetic form of Venkataraman (PhD thesis, University of Maryland,
     1999, eq 30), which COMSOL Multiphysics and Altair Flux implement. Irreversible change
     is driven by the effective field, dMirr/dHe = δM·(Man − Mirr)/(δ·k), with
@@ -128,15 +166,14 @@ class VenkataramanJA(JAVariant):
     treats as a failed individual.
     """
 
-    def slope(self, H, M, delta, p: Parameters, pinning=True):
-        Man, dMan = anhysteretic(H, M, p)
+    def slope_from_anhysteretic(self, M, delta, p: Parameters, Man, dMan, pinning=True):
         D = Man - M
         active = (delta * D > 0) & pinning
         X = jnp.where(active, D / (delta * p.k), 0.0) + p.c * dMan
         return X / (1.0 - p.alpha * X)
 
 
-class PopJA(JAVariant):
+class PopJA(AnhystereticForm):
     """The sign-continuous form attributed to Pop & Caltun (N. C. Pop and O. F. Caltun,
     Acta Phys. Pol. A 120 (2011) 491): M = Mirr + c·(Man − Mirr) (their eq 4), the
     irreversible slope of the classic model written in M, and no δM switch:
@@ -158,8 +195,7 @@ class PopJA(JAVariant):
     non-finite values, which identification treats as a failed individual.
     """
 
-    def slope(self, H, M, delta, p: Parameters, pinning=True):
-        Man, dMan = anhysteretic(H, M, p)
+    def slope_from_anhysteretic(self, M, delta, p: Parameters, Man, dMan, pinning=True):
         D = Man - M
         one_minus_c = 1.0 - p.c
         denominator = one_minus_c * delta * p.k - p.alpha * D
@@ -170,3 +206,7 @@ class PopJA(JAVariant):
     def distance_to_switch(self, H, M, delta, p: Parameters):
         """Always 1 A/m (> 0): there is no δM switch, so the integrator never splits."""
         return jnp.ones_like(M)
+
+    def evaluate(self, H, M, delta, p: Parameters, pinning=True):
+        s = self.slope(H, M, delta, p, pinning)
+        return s, jnp.ones_like(s), jnp.zeros_like(s)

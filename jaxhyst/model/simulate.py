@@ -1,12 +1,18 @@
-"""`simulate`: the one function that owns the time loop (a ``lax.scan`` over samples).
+"""`simulate`: drive H(t) → M → λ → y, as one pure function of data.
 
-Per sample interval [t_i, t_{i+1}] the field is linear in time and its direction
-δ = sign(H_{i+1} − H_i) is fixed. The interval is split into ``substeps`` equal parts;
-on each, M is advanced by classic RK4 *in H* (the JA model is rate independent), and the
-structural state [y, ẏ] by the exact discretization of `structure` with λ(t) as its
-cubic Hermite interpolant. Both are 4th order, so the error falls ~16× per doubling of
-``substeps`` except near the kink of dM/dH where δM switches on after a reversal.
-The initial state is demagnetized and at rest: M = 0, y = ẏ = 0 at t_0.
+Two stages:
+
+1. `magnetization.magnetization_path` — the only sequential part: a ``lax.scan`` over
+   sample intervals that integrates the Jiles–Atherton slope by RK4 in H (``substeps``
+   pieces per interval, the δM switch located exactly), with a custom derivative rule
+   (a linear recurrence of per-interval partial derivatives) that makes every JAX
+   transformation of it cheap.
+2. Vectorized over all substeps: λ and dλ/dt at the substep points, the cubic Hermite
+   forcing, and the structural response as a linear recurrence with a 2-vector state
+   (`structure.linear_response`).
+
+The initial state is demagnetized and at rest: M = 0, y = ẏ = 0 at t_0. Both stages
+are 4th order, so the error falls ~16× per doubling of ``substeps``.
 """
 
 from __future__ import annotations
@@ -19,8 +25,9 @@ from ..actuator import Actuator
 from ..drive import Drive
 from ..params import Parameters, check_parameters
 from .jiles_atherton import EnergyBasedJA, JAVariant, anhysteretic
-from .magnetostriction import magnetostriction, magnetostriction_rate
-from .structure import cubic_hold_discretization, hermite_taylor_coefficients
+from .magnetization import magnetization_path
+from .magnetostriction import magnetostriction
+from .structure import hermite_taylor_coefficients, structural_response
 
 DEFAULT_SUBSTEPS = 2
 PAPER_VARIANT = EnergyBasedJA()  # immutable Module: a safe shared default
@@ -57,81 +64,6 @@ class Simulation(eqx.Module):
         return jnp.isfinite(self.M).all(-1) & jnp.isfinite(self.y).all(-1)
 
 
-def _rk4(f, H, M, dH, k1):
-    """One classic RK4 step of dM/dH = f(H, M) from (H, M) over dH, given k1 = f(H, M)."""
-    k2 = f(H + 0.5 * dH, M + 0.5 * dH * k1)
-    k3 = f(H + 0.5 * dH, M + 0.5 * dH * k2)
-    k4 = f(H + dH, M + dH * k3)
-    return M + (dH / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-
-
-def _substep_magnetization(variant, p, delta, H, M, dH, k1):
-    """Advance M over one substep, splitting it where δM switches on.
-
-    After a field reversal the irreversible term is suppressed until Man − M changes sign;
-    there dM/dH has a kink (M is only C¹) and an RK4 step across it loses three orders.
-    If the plain step ends on the other side of the switch, the switch point is found by
-    linear interpolation of δ·(Man − M) and the substep is redone as a purely reversible
-    RK4 step up to it and a normal RK4 step after it. ``lax.cond`` keeps the redo off the
-    common path for single trajectories (under vmap both branches run).
-    """
-
-    def f(H, M):
-        return variant.slope(H, M, delta, p)
-
-    M_plain = _rk4(f, H, M, dH, k1)
-    d0 = variant.distance_to_switch(H, M, delta, p)
-    d1 = variant.distance_to_switch(H + dH, M_plain, delta, p)
-    switches = (d0 <= 0) & (d1 > 0)
-
-    def split(_):
-        theta = jnp.clip(d0 / jnp.where(switches, d0 - d1, -1.0), 0.0, 1.0)
-
-        def reversible(H, M):
-            return variant.slope(H, M, delta, p, pinning=False)
-
-        M_mid = _rk4(reversible, H, M, theta * dH, reversible(H, M))
-        H_mid = H + theta * dH
-        return _rk4(f, H_mid, M_mid, (1.0 - theta) * dH, f(H_mid, M_mid))
-
-    return jnp.where(switches, split(None), M_plain)
-
-
-def _interval_step(variant, p, force_gain, substeps):
-    """The scan body: advance (M, x) over one sample interval."""
-
-    def step(carry, interval):
-        M, x = carry
-        H0, H1, h, Phi, G = interval
-        dH = (H1 - H0) / substeps
-        delta = jnp.where(H1 >= H0, 1.0, -1.0)
-        dH_dt = dH / h  # A/m per s, constant over the interval
-
-        def f(H, M):
-            return variant.slope(H, M, delta, p)
-
-        def substep(state, _):
-            H, M, k1, x = state
-            M_next = _substep_magnetization(variant, p, delta, H, M, dH, k1)
-            H_next = H + dH
-            k_end = f(H_next, M_next)
-            lam0 = magnetostriction(M, p.Ms, p.lambda_s)
-            lam1 = magnetostriction(M_next, p.Ms, p.lambda_s)
-            dlam0 = magnetostriction_rate(M, k1 * dH_dt, p.Ms, p.lambda_s)
-            dlam1 = magnetostriction_rate(M_next, k_end * dH_dt, p.Ms, p.lambda_s)
-            w = force_gain * hermite_taylor_coefficients(lam0, dlam0, lam1, dlam1, h)
-            # explicit 2×2 / 2×4 products: XLA:CPU calls a BLAS kernel per tiny dot
-            x = (Phi * x).sum(-1) + (G * w).sum(-1)
-            return (H_next, M_next, k_end, x), None
-
-        # An inner scan rather than a Python loop keeps the traced program (and so the
-        # compile time of solvers that differentiate through it) independent of substeps.
-        (_, M, _, x), _ = jax.lax.scan(substep, (H0, M, f(H0, M), x), None, length=substeps)
-        return (M, x), (M, x[0], x[1])
-
-    return step
-
-
 def simulate_unchecked(
     params: Parameters,
     actuator: Actuator,
@@ -142,25 +74,24 @@ def simulate_unchecked(
     """`simulate` without input validation: the pure function for jit/vmap/grad inside
     solvers. Same arguments and result as `simulate`."""
     p = params
-    force_gain = actuator.Ar * p.E / p.Mz  # u = Ar·E·λ/Mz, m/s² per unit λ
+    S = int(substeps)
     t, H = drive.t, drive.H
-    n_int = t.shape[0] - 1
-    if drive.dt is not None:
-        h = jnp.full((n_int,), drive.dt / substeps)
-        Phi, G = cubic_hold_discretization(p, drive.dt / substeps)
-        Phis = jnp.broadcast_to(Phi, (n_int, 2, 2))
-        Gs = jnp.broadcast_to(G, (n_int, 2, 4))
-    else:
-        h = jnp.diff(t) / substeps
-        Phis, Gs = jax.vmap(lambda hi: cubic_hold_discretization(p, hi))(h)
-    step = _interval_step(variant, p, force_gain, substeps)
-    M0 = jnp.zeros((), dtype=jnp.float64)
-    x0 = jnp.zeros((2,), dtype=jnp.float64)
-    _, (M, y, v) = jax.lax.scan(step, (M0, x0), (H[:-1], H[1:], h, Phis, Gs))
-    zero = jnp.zeros((1,), dtype=jnp.float64)
-    M = jnp.concatenate([zero, M])
-    y = jnp.concatenate([zero, y])
-    v = jnp.concatenate([zero, v])
+    M_sub, k_sub = magnetization_path(p, H, variant=variant, substeps=S)  # (N, S), (N, S+1)
+    zero = jnp.zeros((1,), dtype=H.dtype)
+    M = jnp.concatenate([zero, M_sub[:, -1]])
+    M_points = jnp.concatenate([M[:-1, None], M_sub], axis=1)  # u_0 … u_S, (N, S + 1)
+    h = jnp.diff(t) / S  # substep length, s
+    dH_dt = (jnp.diff(H) / S) / h  # A/m per s, constant over an interval
+    m = M_points / p.Ms
+    lam = 1.5 * p.lambda_s * m * m
+    dlam = 3.0 * p.lambda_s * m * (k_sub * dH_dt[:, None] / p.Ms)
+    force_gain = actuator.Ar * p.E / p.Mz  # u = Ar·E·λ/Mz, m/s² per unit λ
+    w = force_gain * hermite_taylor_coefficients(lam[:, :-1], dlam[:, :-1], lam[:, 1:],
+                                                 dlam[:, 1:], h[:, None])  # (N, S, 4)
+    x = structural_response(p, jnp.repeat(h, S), w.reshape(-1, 4), drive.uniform)
+    x = x[S - 1 :: S]  # at the samples
+    y = jnp.concatenate([zero, x[:, 0]])
+    v = jnp.concatenate([zero, x[:, 1]])
     Man, _ = anhysteretic(H, M, p)
     return Simulation(
         t=t,
@@ -191,9 +122,26 @@ def _check_inputs(params, actuator, drive, variant, substeps) -> None:
         )
     if not isinstance(variant, JAVariant):
         raise TypeError(f"variant must be a JAVariant (e.g. EnergyBasedJA()); got {variant!r}.")
-    if not isinstance(substeps, int) or substeps < 1:
+    if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
         raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
     check_parameters(params)
+
+
+def _check_single(params, drive) -> None:
+    """`simulate` takes one parameter set and one drive."""
+    shapes = {n: jnp.shape(getattr(params, n)) for n in params.names}
+    batched = {n: s for n, s in shapes.items() if s != ()}
+    if batched:
+        n, s = next(iter(batched.items()))
+        raise ValueError(
+            f"simulate takes one parameter set, but params.{n} has shape {s}; for a batch "
+            "of parameter sets use jaxhyst.simulate_batch (or jax.vmap(simulate_unchecked))."
+        )
+    if jnp.ndim(drive.H) != 1:
+        raise ValueError(
+            f"simulate takes one drive, but drive.H has shape {jnp.shape(drive.H)}; for a "
+            "batch of drives use jax.vmap(simulate_unchecked, in_axes=(None, None, 0))."
+        )
 
 
 def simulate(
@@ -218,6 +166,7 @@ def simulate(
     or `jaxhyst.simulate_batch`.
     """
     _check_inputs(params, actuator, drive, variant, substeps)
+    _check_single(params, drive)
     return _simulate_jit(params, actuator, drive, variant, substeps)
 
 

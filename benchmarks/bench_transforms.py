@@ -1,0 +1,258 @@
+"""What each JAX transformation of the simulator costs (issue 13), in one run:
+
+- a scalar loss Σy² of the Table 1 drive (T samples): forward pass, ``jax.grad`` with
+  respect to (log a, log k, c) and with respect to every drive sample, ``jax.jacfwd`` of
+  y over all ten parameters, ``jax.hessian`` of the loss; the same through plain JAX AD of
+  the time loop (no custom rule) for comparison;
+- first-call compile times, each measured in a fresh process (no persistent cache):
+  forward, grad, hessian, and a cold Levenberg–Marquardt solve (trace + compile + solve);
+- population evaluation (``jax.vmap``) at P = 120 and 1000, on one device and sharded
+  over two host devices, against the Numba loop of `reference_loop.py` (one core and
+  ``prange`` over both cores), and the single trajectory against Numba.
+
+    python benchmarks/bench_transforms.py [--spp 200] [--repeats 30]
+
+Times are medians of repeated calls after compilation. Run on a quiet machine; compare
+ratios within one run only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def median_ms(fn, repeats):
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)) * 1e3
+
+
+def setup(spp):
+    import jax.numpy as jnp
+
+    import jaxhyst as jh
+    from jaxhyst.model import magnetization as mag
+    from jaxhyst.model.simulate import simulate_unchecked
+
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=spp)
+    p0 = jh.TABLE1_TRUE
+
+    def with_akc(z):
+        return p0.replace(a=jnp.exp(z[0]), k=jnp.exp(z[1]), c=z[2])
+
+    def loss(z):
+        return jnp.sum(simulate_unchecked(with_akc(z), jh.ACTUATOR1, drive).y ** 2) * 1e12
+
+    def loss_H(H):
+        d = jh.Drive(drive.t, H, run_in=drive.run_in, uniform=True)
+        return jnp.sum(simulate_unchecked(p0, jh.ACTUATOR1, d).y ** 2) * 1e12
+
+    def y_of(x):
+        return simulate_unchecked(jh.Parameters.from_array(x), jh.ACTUATOR1, drive).y
+
+    z0 = jnp.array([np.log(7012.0), np.log(3283.0), 0.18])
+    return dict(jh=jh, mag=mag, drive=drive, loss=loss, loss_H=loss_H, y_of=y_of, z0=z0,
+                x0=p0.to_array())
+
+
+def compile_child(what, spp):
+    """Print the first-call time of one transformation (run in a fresh process)."""
+    import jax
+
+    s = setup(spp)
+    t0 = time.perf_counter()
+    if what == "forward":
+        jax.jit(s["loss"])(s["z0"]).block_until_ready()
+    elif what == "grad":
+        jax.jit(jax.grad(s["loss"]))(s["z0"]).block_until_ready()
+    elif what == "jacfwd":
+        jax.jit(jax.jacfwd(s["y_of"]))(s["x0"]).block_until_ready()
+    elif what == "hessian":
+        jax.jit(jax.hessian(s["loss"]))(s["z0"]).block_until_ready()
+    elif what == "lm_solve":
+        jh = s["jh"]
+        problem = jh.synthetic_problem(jh.TABLE1_TRUE, s["drive"], jh.ACTUATOR1,
+                                       jh.TABLE1_BOUNDS)
+        res = jh.solve(problem, np.full(10, 0.5), solver="lm", report=False)
+        assert res.cost < 1e-10, res.cost
+    first = time.perf_counter() - t0
+    print(json.dumps({"what": what, "first_call_s": first}))
+
+
+def compile_times(spp):
+    out = {}
+    env = dict(os.environ, JAXHYST_CACHE_DIR="off")
+    for what in ("forward", "grad", "jacfwd", "hessian", "lm_solve"):
+        r = subprocess.run([sys.executable, __file__, "--compile-child", what, "--spp",
+                            str(spp)], env=env, capture_output=True, text=True, check=True)
+        out[what] = json.loads(r.stdout.strip().splitlines()[-1])["first_call_s"]
+    return out
+
+
+def derivative_table(spp, repeats):
+    import jax
+    import jax.numpy as jnp
+
+    s = setup(spp)
+    mag, jh = s["mag"], s["jh"]
+    f = jax.jit(s["loss"])
+    g = jax.jit(jax.grad(s["loss"]))
+    gH = jax.jit(jax.grad(s["loss_H"]))
+    J = jax.jit(jax.jacfwd(s["y_of"]))
+    Hs = jax.jit(jax.hessian(s["loss"]))
+    z0, x0, H0 = s["z0"], s["x0"], s["drive"].H
+    rows = {
+        "forward": median_ms(lambda: f(z0).block_until_ready(), repeats),
+        "grad (a, k, c)": median_ms(lambda: g(z0).block_until_ready(), repeats),
+        "grad (every drive sample)": median_ms(lambda: gH(H0).block_until_ready(), repeats),
+        "jacfwd of y (10 parameters)": median_ms(lambda: J(x0).block_until_ready(), repeats),
+        "hessian (a, k, c)": median_ms(lambda: Hs(z0).block_until_ready(), repeats),
+    }
+    # plain JAX AD of the same time loop, without the custom rule
+    plain = mag.magnetization_path
+    mag.magnetization_path = lambda p, H, *, variant, substeps: mag._time_loop(
+        variant, p, H, substeps, batched=False)
+    import jaxhyst.model.simulate as sim_mod
+
+    sim_mod.magnetization_path = mag.magnetization_path
+    try:
+        s2 = setup(spp)
+        f2 = jax.jit(s2["loss"])
+        g2 = jax.jit(jax.grad(s2["loss"]))
+        gH2 = jax.jit(jax.grad(s2["loss_H"]))
+        J2 = jax.jit(jax.jacfwd(s2["y_of"]))
+        plain_rows = {
+            "forward": median_ms(lambda: f2(z0).block_until_ready(), repeats),
+            "grad (a, k, c)": median_ms(lambda: g2(z0).block_until_ready(), repeats),
+            "grad (every drive sample)": median_ms(lambda: gH2(H0).block_until_ready(),
+                                                   repeats),
+            "jacfwd of y (10 parameters)": median_ms(lambda: J2(x0).block_until_ready(),
+                                                     repeats),
+        }
+        agree = float(jnp.max(jnp.abs(g(z0) - g2(z0))) / jnp.max(jnp.abs(g2(z0))))
+    finally:
+        mag.magnetization_path = plain
+        sim_mod.magnetization_path = plain
+    return rows, plain_rows, agree, s["drive"].n_samples, jh.cpu_loop_kernels()
+
+
+def population_table(spp, repeats, sharded):
+    import jax
+
+    s = setup(spp)
+    jh = s["jh"]
+    lo, hi = jh.TABLE1_BOUNDS.lower.to_array(), jh.TABLE1_BOUNDS.upper.to_array()
+    batched = jax.jit(jax.vmap(s["y_of"]))
+    rows = {}
+    for P in (120, 1000):
+        X = lo + (hi - lo) * jax.random.uniform(jax.random.PRNGKey(0), (P, 10))
+        if sharded:
+            from jaxhyst.sharding import batch_sharding, place
+
+            X = place(X, batch_sharding(P, True))
+        t = median_ms(lambda X=X: batched(X).block_until_ready(), max(3, repeats // 5))
+        rows[P] = t / (P * s["drive"].n_samples) * 1e6  # ns per individual·sample
+    return rows
+
+
+def numba_table(spp, repeats):
+    sys.path.insert(0, HERE)
+    from reference_loop import numba_module, structural_matrices
+
+    import jaxhyst as jh
+
+    mod = numba_module()
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=spp)
+    H, T = np.asarray(drive.H), drive.n_samples
+    h, Ar = float(drive.dt) / 2, float(jh.ACTUATOR1.Ar)
+    th = np.asarray(jh.TABLE1_TRUE.to_array())
+    Phi, G = structural_matrices(th[7], th[8], th[9], h)
+    y = np.zeros(T)
+    single = median_ms(lambda: mod.simulate_loop(th, Ar, H, h, 2, Phi, G, y), repeats * 5)
+    rng = np.random.default_rng(0)
+    lo = np.asarray(jh.TABLE1_BOUNDS.lower.to_array())
+    hi = np.asarray(jh.TABLE1_BOUNDS.upper.to_array())
+    rows = {}
+    for P in (120, 1000):
+        X = lo + (hi - lo) * rng.uniform(size=(P, 10))
+        mats = [structural_matrices(x[7], x[8], x[9], h) for x in X]
+        Phis, Gs = np.stack([m[0] for m in mats]), np.stack([m[1] for m in mats])
+        Y = np.zeros((P, T))
+        par = median_ms(lambda: mod.simulate_population(X, Ar, H, h, 2, Phis, Gs, Y),
+                        max(3, repeats // 5))
+
+        def serial(X=X, Phis=Phis, Gs=Gs, Y=Y):
+            for j in range(len(X)):
+                mod.simulate_loop(X[j], Ar, H, h, 2, Phis[j], Gs[j], Y[j])
+
+        ser = median_ms(serial, max(3, repeats // 5))
+        rows[P] = (par / (P * T) * 1e6, ser / (P * T) * 1e6)
+    return single, rows
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--spp", type=int, default=200, help="samples per period (200: T = 451)")
+    ap.add_argument("--repeats", type=int, default=30)
+    ap.add_argument("--compile-child", help=argparse.SUPPRESS)
+    ap.add_argument("--sharded-child", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.compile_child:
+        compile_child(args.compile_child, args.spp)
+        return
+    if args.sharded_child:
+        print(json.dumps(population_table(args.spp, args.repeats, True)))
+        return
+    sys.path.insert(0, HERE)
+    from bench_simulate import machine
+
+    print(f"machine: {machine()}\n", flush=True)
+    rows, plain_rows, agree, T, loops = derivative_table(args.spp, args.repeats)
+    fwd = rows["forward"]
+    print(f"Table 1 drive, T = {T} samples, 2 RK4 substeps; XLA:CPU loop kernels: {loops}\n")
+    print("| transformation | jaxhyst (ms) | × forward | plain AD of the scan (ms) | × forward |")
+    print("|---|---|---|---|---|")
+    for k, v in rows.items():
+        pv = plain_rows.get(k)
+        ps = f"{pv:.3f} | {pv / plain_rows['forward']:.1f}" if pv else "– | –"
+        print(f"| {k} | {v:.3f} | {v / fwd:.1f} | {ps} |")
+    print(f"\ngrad agrees with plain AD to {agree:.1e} (relative)\n", flush=True)
+    single, numba_rows = numba_table(args.spp, args.repeats)
+    print(f"single trajectory: jaxhyst forward {fwd:.3f} ms, Numba {single:.3f} ms "
+          f"({fwd / single:.1f}×)\n", flush=True)
+    one = population_table(args.spp, args.repeats, False)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    child = subprocess.run([sys.executable, __file__, "--sharded-child", "--spp",
+                            str(args.spp), "--repeats", str(args.repeats)], env=env,
+                           capture_output=True, text=True, check=True)
+    two = {int(k): v for k, v in json.loads(child.stdout.strip().splitlines()[-1]).items()}
+    print("| P | jax vmap, 1 device | jax vmap, 2 host devices | Numba prange, 2 cores | "
+          "Numba, 1 core | best jax vs Numba 2 cores |")
+    print("|---|---|---|---|---|---|")
+    for P in (120, 1000):
+        best = min(one[P], two[P])
+        print(f"| {P} | {one[P]:.0f} | {two[P]:.0f} | {numba_rows[P][0]:.0f} | "
+              f"{numba_rows[P][1]:.0f} | {numba_rows[P][0] / best:.1f}× |")
+    print("(ns per individual·sample)\n", flush=True)
+    comp = compile_times(args.spp)
+    print("| first call, fresh process, no cache | seconds |")
+    print("|---|---|")
+    for k, v in comp.items():
+        print(f"| {k} | {v:.1f} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,170 @@
+"""The core under JAX transformations (issue 13): drives and actuators as data (no
+recompilation), vmap over drives, derivatives through the drive builders and the
+geometry, and the custom derivative rule and batch rule checked against the scan."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxhyst as jh
+from jaxhyst.model import magnetization as mag
+from jaxhyst.model.simulate import simulate_unchecked
+
+SPP = 50  # coarse drives keep the compilations short
+
+
+def _drive(f=100.0, amplitude=0.77, offset=1.53, actuator=jh.ACTUATOR1):
+    return jh.sinusoidal_current(f, amplitude, offset, actuator, samples_per_period=SPP)
+
+
+def test_no_recompilation_for_new_values_frequency_jitter_or_actuator():
+    traces = []
+
+    @jax.jit
+    def y(p, actuator, drive):
+        traces.append(1)  # runs only while tracing, i.e. once per compilation
+        return simulate_unchecked(p, actuator, drive).y
+
+    base = _drive()
+    y(jh.TABLE1_TRUE, jh.ACTUATOR1, base)
+    y(jh.TABLE1_TRUE.replace(a=6500.0, k=3000.0), jh.ACTUATOR1, base)  # new parameters
+    y(jh.TABLE1_TRUE, jh.ACTUATOR1, _drive(f=137.0, amplitude=0.5))  # new frequency
+    jitter = 1e-12 * np.random.default_rng(0).standard_normal(base.n_samples)
+    jittered = jh.Drive(np.asarray(base.t) + jitter, base.H, run_in=base.run_in)
+    assert jittered.uniform
+    y(jh.TABLE1_TRUE, jh.ACTUATOR1, jittered)
+    other = jh.Actuator(Ar=9e-5, lr=0.1, n=40000.0, name="other")
+    y(jh.TABLE1_TRUE, other, _drive(actuator=other))  # new actuator
+    assert len(traces) == 1
+
+
+def test_jittered_time_stamps_give_the_exact_nonuniform_result():
+    base = _drive()
+    t = np.asarray(base.t) + 4e-5 * float(base.dt) * np.sin(np.arange(base.n_samples))
+    jittered = jh.Drive(t, base.H, run_in=base.run_in)
+    exact = jh.Drive(t, base.H, run_in=base.run_in, uniform=False)
+    assert jittered.uniform and not exact.uniform
+    y1 = simulate_unchecked(jh.TABLE1_TRUE, jh.ACTUATOR1, jittered).y
+    y2 = simulate_unchecked(jh.TABLE1_TRUE, jh.ACTUATOR1, exact).y
+    assert float(jnp.max(jnp.abs(y1 - y2)) / jnp.max(jnp.abs(y2))) < 1e-11
+
+
+def test_vmap_over_drives_of_different_frequencies_equals_single_runs():
+    freqs = jnp.array([10.0, 100.0, 800.0])
+    drives = [jh.sinusoidal_field(float(f), 8e3, 16e3, samples_per_period=SPP) for f in freqs]
+    stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *drives)
+    p, act = jh.TABLE3[800], jh.ACTUATOR2
+    batch = jax.jit(jax.vmap(lambda d: simulate_unchecked(p, act, d).y))(stacked)
+    for i, d in enumerate(drives):
+        np.testing.assert_allclose(batch[i], jh.simulate(p, act, d).y, rtol=1e-12,
+                                   atol=1e-12 * float(jnp.max(jnp.abs(batch[i]))))
+    # the drive builder itself vmaps over a traced frequency
+    built = jax.jit(jax.vmap(lambda f: simulate_unchecked(
+        p, act, jh.sinusoidal_field(f, 8e3, 16e3, samples_per_period=SPP)).y))(freqs)
+    np.testing.assert_allclose(built, batch, rtol=1e-12, atol=1e-20)
+
+
+def _central(f, x, h):
+    return (f(x + h) - f(x - h)) / (2 * h)
+
+
+@pytest.mark.parametrize("name", ["amplitude", "offset", "frequency", "Ar", "lr"])
+def test_grad_through_the_drive_builder_and_the_geometry_matches_differences(name):
+    p = jh.TABLE1_TRUE
+    base = {"amplitude": 0.77, "offset": 1.53, "frequency": 100.0, "Ar": 7.85e-5,
+            "lr": 0.085}
+
+    def loss(value):
+        v = {**base, name: value}
+        act = jh.Actuator(Ar=v["Ar"], lr=v["lr"], n=48471.0)
+        d = jh.sinusoidal_current(v["frequency"], v["amplitude"], v["offset"], act,
+                                  samples_per_period=SPP)
+        return jnp.sum(simulate_unchecked(p, act, d).strain ** 2) * 1e12
+
+    x = base[name]
+    g = float(jax.jit(jax.grad(loss))(x))
+    f = jax.jit(loss)
+    h = 1e-4 * abs(x)
+    fd = (4 * _central(f, x, h / 2) - _central(f, x, h)) / 3  # Richardson, O(h⁴)
+    assert abs(g - float(fd)) <= 1e-6 * abs(float(fd)), (g, float(fd))
+
+
+def _plain_path(p, H, variant, substeps):
+    """The time loop differentiated by plain JAX AD (no custom rule): the reference."""
+    return mag._time_loop(variant, p, H, substeps, batched=False)
+
+
+@pytest.mark.parametrize("variant", [
+    jh.EnergyBasedJA(),
+    pytest.param(jh.ClassicJA(), marks=pytest.mark.slow),
+    pytest.param(jh.PopJA(), marks=pytest.mark.slow),
+], ids=["energy", "classic", "pop"])
+def test_custom_rule_equals_plain_ad_of_the_scan_in_every_mode(variant):
+    # plain AD of the scan compiles slowly: a short drive with reversals and switches
+    drive = jh.sinusoidal_field(100.0, 3e4, 5e3, samples_per_period=16)
+    H = drive.H
+    p0 = jh.TABLE3[10]
+
+    def params(x):
+        return p0.replace(a=x[0], k=x[1], alpha=x[2], c=x[3])
+
+    x = jnp.array([7012.0, 3283.0, -0.01, 0.18])
+
+    def loss(path, x, H):
+        M, k = path(params(x), H, variant, 2)
+        return jnp.sum((M / 1e5) ** 2) + jnp.sum(k**2)
+
+    def custom(p, H, v, S):
+        return mag.magnetization_path(p, H, variant=v, substeps=S)
+
+    g1 = jax.jit(jax.grad(lambda x, H: loss(custom, x, H), argnums=(0, 1)))(x, H)
+    g2 = jax.jit(jax.grad(lambda x, H: loss(_plain_path, x, H), argnums=(0, 1)))(x, H)
+    for a, b in zip(g1, g2, strict=True):
+        assert float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))) < 1e-11
+    J1 = jax.jit(jax.jacfwd(lambda x: custom(params(x), H, variant, 2)[0]))(x)
+    J2 = jax.jit(jax.jacfwd(lambda x: _plain_path(params(x), H, variant, 2)[0]))(x)
+    assert float(jnp.max(jnp.abs(J1 - J2)) / jnp.max(jnp.abs(J2))) < 1e-11
+
+
+def test_second_derivatives_match_differences_of_the_gradient():
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=20)
+    p0 = jh.TABLE1_TRUE
+
+    def loss(z):  # log a, log k, c
+        p = p0.replace(a=jnp.exp(z[0]), k=jnp.exp(z[1]), c=z[2])
+        return jnp.sum(simulate_unchecked(p, jh.ACTUATOR1, drive).y ** 2) * 1e12
+
+    z = jnp.array([np.log(7012.0), np.log(3283.0), 0.18])
+    Hs = jax.jit(jax.hessian(loss))(z)
+    g = jax.jit(jax.grad(loss))
+    h = 1e-4
+    rows = []
+    for i in range(3):
+        def along(s, i=i):
+            return g(z.at[i].add(s))
+
+        rows.append((4 * _central(along, 0.0, h / 2) - _central(along, 0.0, h)) / 3)
+    fd = np.stack(rows)
+    np.testing.assert_allclose(Hs, fd, rtol=0, atol=1e-6 * float(jnp.max(jnp.abs(Hs))))
+
+
+def test_batch_rule_equals_single_runs_and_needs_no_vmap_of_conditionals():
+    drive = _drive()
+    lo, hi = jh.TABLE1_BOUNDS.lower.to_array(), jh.TABLE1_BOUNDS.upper.to_array()
+    X = lo + (hi - lo) * jax.random.uniform(jax.random.PRNGKey(3), (6, 10))
+    batch = jax.jit(jax.vmap(lambda x: mag._scan(jh.Parameters.from_array(x), drive.H,
+                                                 jh.EnergyBasedJA(), 2)))(X)
+    for i in range(6):
+        single = mag._time_loop(jh.EnergyBasedJA(), jh.Parameters.from_array(X[i]), drive.H,
+                                2, batched=False)
+        for a, b in zip(batch, single, strict=True):
+            np.testing.assert_allclose(a[i], b, rtol=1e-13, atol=1e-9)
+
+
+def test_batched_parameters_given_to_simulate_are_refused_with_the_fix():
+    batch = jh.Parameters.from_array(jnp.stack([jh.TABLE1_TRUE.to_array()] * 3))
+    with pytest.raises(ValueError, match="simulate_batch"):
+        jh.simulate(batch, jh.ACTUATOR1, _drive())
