@@ -92,8 +92,9 @@ def main():
                            method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15,
                            max_nfev=settings.T3)
         wall = time.perf_counter() - t0
-        res = jh.identify.local.summarize(problem, jnp.asarray(ls.x), ls.nfev, 0,
-                                          "DE+trf", wall)
+        res = jh.identify.local.summarize(
+            problem, jnp.asarray(ls.x), ls.nfev,
+            "successful" if ls.status > 0 else "max_steps_reached", "DE+trf", wall)
         runs.append((f"DE+trf s{seed}", res, wall, counter["n"], ls.nfev))
 
     # -- the table in the paper's layout ------------------------------------------------------

@@ -1,88 +1,52 @@
 """jaxhyst: differentiable Jiles–Atherton hysteresis of magnetostrictive actuators in JAX.
 
-Importing the package turns on float64 and compiles CPU time loops as single kernels
-(see `jaxhyst._config`); JAX's persistent compilation cache is one call,
-`jaxhyst.enable_compilation_cache()`.
+Importing the package turns on float64 for JAX and lets XLA compile CPU time loops as
+single kernels (see `jaxhyst._config`) without importing JAX itself: the names below are
+loaded on first use, so that ``jaxhyst --help`` answers at once. JAX's persistent
+compilation cache is one call, `jaxhyst.enable_compilation_cache()`.
 """
 
-from ._config import cpu_loop_kernels, enable_compilation_cache  # (first: x64)
-from .actuator import ACTUATOR1, ACTUATOR2, Actuator
-from .drive import Drive, drive_from_record, sinusoidal_current, sinusoidal_field
-from .model import (
-    ClassicJA,
-    EnergyBasedJA,
-    JAVariant,
-    PopJA,
-    Simulation,
-    VenkataramanJA,
-    frequency_response,
-    langevin,
-    langevin_slope,
-    magnetostriction,
-    simulate,
-    simulate_unchecked,
-)
-from .model.simulate import simulate_batch
-from .params import NAMES, TABLE1_BOUNDS, TABLE1_TRUE, TABLE3, UNITS, Bounds, Parameters
+from __future__ import annotations
+
+import importlib
+
+from ._config import cpu_loop_kernels, enable_compilation_cache  # (first: x64, XLA flag)
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "cpu_loop_kernels",
-    "enable_compilation_cache",
-    "ACTUATOR1",
-    "ACTUATOR2",
-    "NAMES",
-    "TABLE1_BOUNDS",
-    "TABLE1_TRUE",
-    "TABLE3",
-    "UNITS",
-    "Actuator",
-    "Bounds",
-    "ClassicJA",
-    "VenkataramanJA",
-    "PopJA",
-    "Drive",
-    "EnergyBasedJA",
-    "JAVariant",
-    "Parameters",
-    "Simulation",
-    "drive_from_record",
-    "frequency_response",
-    "langevin",
-    "langevin_slope",
-    "magnetostriction",
-    "simulate",
-    "simulate_batch",
-    "simulate_unchecked",
-    "sinusoidal_current",
-    "sinusoidal_field",
-]
+#: Public name → the submodule that defines it (imported on first access).
+_EXPORTS = {
+    **dict.fromkeys(("ACTUATOR1", "ACTUATOR2", "Actuator"), ".actuator"),
+    **dict.fromkeys(("Drive", "drive_from_record", "sinusoidal_current", "sinusoidal_field"),
+                    ".drive"),
+    **dict.fromkeys(("ClassicJA", "EnergyBasedJA", "JAVariant", "PopJA", "VenkataramanJA",
+                     "Simulation", "frequency_response", "langevin", "langevin_slope",
+                     "magnetostriction", "simulate", "simulate_unchecked"), ".model"),
+    "simulate_batch": ".model.simulate",
+    **dict.fromkeys(("NAMES", "TABLE1_BOUNDS", "TABLE1_TRUE", "TABLE3", "UNITS", "Bounds",
+                     "Parameters"), ".params"),
+    **dict.fromkeys(("multistart", "run_hybrid", "solve"), ".fit"),
+    **dict.fromkeys(("AbstractProblem", "GASettings", "GaussianPrior", "HybridGA",
+                     "IdentificationResult", "JointProblem", "JointSpace", "Outcome",
+                     "ParameterSpace", "Problem", "ResidualGroup", "ResidualProblem",
+                     "loop_problem", "synthetic_problem"), ".identify"),
+}
+_SUBMODULES = ("actuator", "analysis", "drive", "fit", "identify", "io", "model", "names",
+               "params", "plots", "sharding", "study")
 
-from .identify import (  # noqa: E402
-    GASettings,
-    IdentificationResult,
-    JointProblem,
-    JointSpace,
-    ParameterSpace,
-    Problem,
-    loop_problem,
-    multistart,
-    run_hybrid,
-    solve,
-    synthetic_problem,
-)
+__all__ = ["cpu_loop_kernels", "enable_compilation_cache", *_EXPORTS]
 
-__all__ += [
-    "GASettings",
-    "run_hybrid",
-    "IdentificationResult",
-    "JointProblem",
-    "JointSpace",
-    "ParameterSpace",
-    "loop_problem",
-    "Problem",
-    "multistart",
-    "solve",
-    "synthetic_problem",
-]
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(_EXPORTS[name], __name__), name)
+    elif name in _SUBMODULES:
+        value = importlib.import_module(f".{name}", __name__)
+    else:
+        raise AttributeError(f"module 'jaxhyst' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted([*globals(), *__all__, *_SUBMODULES])

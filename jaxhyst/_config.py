@@ -1,20 +1,22 @@
 """Process-wide JAX settings that jaxhyst needs, applied once on import — and the ones it
 offers but does not impose.
 
-Applied on import:
+Applied on import (``import jaxhyst`` itself does not import JAX):
 
-- **float64** (``jax_enable_x64``): the parameters span 1e-3 … 1e10 and identification
-  reaches normalised costs of 1e-25, neither of which survives float32.
+- **float64** (``jax_enable_x64``, through ``JAX_ENABLE_X64=1`` while JAX is not yet
+  imported): the parameters span 1e-3 … 1e10 and identification reaches normalised
+  costs of 1e-25, neither of which survives float32.
 - **Time loops compiled as one kernel on the CPU.** XLA:CPU runs a loop body as a
   sequence of kernels, ~0.1 µs each, unless the loop is "small", which it then compiles
   into a single function (its `SmallWhileLoopHoistingPass`). The default size limit
   (1 KiB of memory traffic per iteration) leaves out the Jiles–Atherton time loop, which
-  then runs ~5× slower. jaxhyst raises the limit to 256 KiB by adding
-  ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=262144`` to
+  then runs ~5× slower. jaxhyst raises the limit to 4 MiB (a single trajectory's loop
+  and a population of ~100 fit under it) by adding
+  ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=4194304`` to
   ``XLA_FLAGS``. This can only take effect before JAX creates its CPU backend (the first
   computation of the process), affects only CPU loops whose iterations touch less than
-  256 KiB, and is skipped when ``XLA_FLAGS`` already sets ``xla_backend_extra_options``
-  or ``JAXHYST_XLA_FLAGS=off``. `cpu_loop_kernels` says whether it is in effect.
+  4 MiB, and is skipped when ``XLA_FLAGS`` already sets ``xla_backend_extra_options`` or
+  ``JAXHYST_XLA_FLAGS=off``. `cpu_loop_kernels` says whether it is in effect.
 
 Offered, not imposed: JAX's persistent compilation cache (`enable_compilation_cache`),
 which the ``jaxhyst`` command turns on.
@@ -23,21 +25,32 @@ which the ``jaxhyst`` command turns on.
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 from pathlib import Path
-
-import jax
-
-jax.config.update("jax_enable_x64", True)
 
 LOOP_THRESHOLD_BYTES = 4194304
 _LOOP_OPTION = f"xla_cpu_small_while_loop_byte_threshold={LOOP_THRESHOLD_BYTES}"
 _loop_flag_state = "not applied"
 
 
+def _enable_x64() -> None:
+    """float64 for every JAX computation of the process: through the environment while
+    JAX is not imported yet (so that importing jaxhyst does not import JAX), else
+    through JAX's config."""
+    if "jax" in sys.modules:
+        import jax
+
+        jax.config.update("jax_enable_x64", True)
+    else:
+        os.environ["JAX_ENABLE_X64"] = "1"
+
+
 def _backends_initialized() -> bool:
     """Whether JAX has created its backends already (then XLA_FLAGS is read)."""
-    try:  # internal, tested with jax 0.10 – 0.11; assume "no" if it moves
+    if "jax" not in sys.modules:
+        return False
+    try:  # internal, tested with jax 0.10; assume "no" if it moves
         from jax._src import xla_bridge
 
         return bool(xla_bridge.backends_are_initialized())
@@ -72,6 +85,7 @@ def cpu_loop_kernels() -> str:
     return _loop_flag_state
 
 
+_enable_x64()
 _apply_loop_flag()
 
 
@@ -94,6 +108,8 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None) -> Path
     take seconds). ``directory`` defaults to `cache_dir` (``JAXHYST_CACHE_DIR=off``:
     nothing is done). A cache directory the user already configured in JAX is respected.
     Affects every JAX program of the process. Returns the directory in use, or None."""
+    import jax
+
     if jax.config.jax_compilation_cache_dir:
         return Path(jax.config.jax_compilation_cache_dir)
     target = Path(directory).expanduser() if directory is not None else cache_dir()

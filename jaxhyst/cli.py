@@ -12,17 +12,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
-import signal
 import sys
 from pathlib import Path
 
+from jaxhyst.names import HYBRID_NAMES, SOLVER_NAMES, VARIANT_CLASSES
+
 UNITS_HELP = ("Units: H A/m, I A, y m, M A/m, B T, t s, f Hz; Ms, a, k A/m; E N/m^2, "
               "Kz N/m, Mz kg, Cz N*s/m; lambda_s, alpha, c dimensionless.")
-LOCAL = ("lm", "indirect_lm", "dogleg", "lma", "tra")
-# command-line name → jaxhyst class (named, so that --help need not import jax)
-VARIANT_CLASSES = {"energy": "EnergyBasedJA", "classic": "ClassicJA",
-                   "venkataraman": "VenkataramanJA", "pop": "PopJA"}
+LOCAL = SOLVER_NAMES
 VARIANTS = tuple(VARIANT_CLASSES)
 
 
@@ -31,7 +30,37 @@ def variant_from_name(name: str):
     import jaxhyst as jh
 
     return getattr(jh, VARIANT_CLASSES[name])()
-HYBRID = ("GATR1", "GALM1", "GATR2", "GALM2", "GA")
+HYBRID = HYBRID_NAMES
+
+
+def _number(kind, minimum, strict: bool, what: str):
+    """An argparse type: a finite number of ``kind`` ≥ (or >) ``minimum``; the error
+    names the rule (argparse adds the option and the value)."""
+    def parse(text):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+        if not math.isfinite(value) or value < minimum or (strict and value == minimum):
+            raise argparse.ArgumentTypeError(f"{text!r}: must be {what}")
+        return value
+
+    parse.__name__ = what
+    return parse
+
+
+POSITIVE_INT = _number(int, 0, True, "a positive integer")
+COUNT = _number(int, 0, False, "an integer >= 0")
+POSITIVE = _number(float, 0.0, True, "a positive number")
+FINITE = _number(float, -math.inf, True, "a finite number")
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors as one line (the option, the value, the rule) instead of the usage
+    block; ``--help`` has the rest."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
 class CLIError(ValueError):
@@ -39,6 +68,41 @@ class CLIError(ValueError):
 
 
 # -- shared resolution of presets and files -----------------------------------------------
+
+
+def _check_outputs(args, *, directory: str | None = None) -> None:
+    """Check the output paths before any work: each file option (``--csv``, ``--png``,
+    ``--out``) must name a file whose directory exists or can be made and is writable;
+    ``directory`` names the option that is a directory instead (reproduce ``--out``).
+    A figure needs matplotlib."""
+    for opt in ("csv", "png", "out"):
+        value = getattr(args, opt, None)
+        if not value or value is True:
+            continue
+        flag = f"--{opt}"
+        path = Path(value).expanduser().resolve()
+        if opt == directory:
+            if path.exists() and not path.is_dir():
+                raise CLIError(f"{flag} {value}: exists and is not a directory; name a "
+                               "directory for the outputs.")
+            parent = path
+        else:
+            if path.is_dir():
+                example = Path(value) / ("result.json" if opt == "out" else f"out.{opt}")
+                raise CLIError(f"{flag} {value}: is a directory; give a file name, e.g. "
+                               f"{example}.")
+            parent = path.parent
+        while not parent.exists():  # made on writing: the nearest existing one decides
+            parent = parent.parent
+        if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+            raise CLIError(f"{flag} {value}: cannot write in {parent}; choose a writable "
+                           "location.")
+    if getattr(args, "png", None):
+        import importlib.util
+
+        if importlib.util.find_spec("matplotlib") is None:
+            raise CLIError(f"--png {args.png}: figures need matplotlib; pip install "
+                           "'jaxhyst[plots]' or leave --png out.")
 
 
 def _params(spec: str):
@@ -149,6 +213,7 @@ def _simulate(args) -> int:
     import jaxhyst as jh
     from jaxhyst.io import write_simulation_csv
 
+    _check_outputs(args)
     params = _params(args.params or args.preset)
     actuator = _actuator(args.actuator)
     drive, what = _drive_from_args(args, actuator)
@@ -161,14 +226,14 @@ def _simulate(args) -> int:
         "y_max_m": float(y.max()), "M_over_Ms_min": float(sim.observed("M").min() / params.Ms),
         "M_over_Ms_max": float(sim.observed("M").max() / params.Ms),
     }  # fmt: skip
-    if args.csv:
-        write_simulation_csv(args.csv, sim)
-        summary["csv"] = args.csv
-    if args.png:
+    if args.png:  # the figure first: if it fails, no CSV is left behind without it
         from jaxhyst.plots import plot_simulation
 
         plot_simulation(sim, args.png, title=f"{actuator.name}, {what}")
         summary["png"] = args.png
+    if args.csv:
+        write_simulation_csv(args.csv, sim)
+        summary["csv"] = args.csv
     text = [f"simulated {summary['samples_observed']} observed samples ({actuator.name}, {what})",
             f"  y in [{summary['y_min_m'] * 1e6:.3f}, {summary['y_max_m'] * 1e6:.3f}] μm, "
             f"M/Ms in [{summary['M_over_Ms_min']:.3f}, {summary['M_over_Ms_max']:.3f}]"]
@@ -257,16 +322,14 @@ def build_problem(spec: dict):
                       substeps=spec.get("substeps", 2))
 
 
-def _terminate_as_interrupt(signum, frame):
-    raise KeyboardInterrupt
-
-
 def _identify(args) -> int:
     import numpy as np
 
     import jaxhyst as jh
+    from jaxhyst._interrupt import stop_requested
     from jaxhyst.io import bounds_to_json, write_json
 
+    _check_outputs(args)
     known = _params(args.params) if args.params else None
     bounds = _bounds(args.bounds)
     actuator = _actuator(args.actuator)
@@ -292,8 +355,6 @@ def _identify(args) -> int:
         settings = jh.GASettings(**{**settings.__dict__, **overrides})
         if args.checkpoint is None and args.resume:
             raise CLIError("--resume needs --checkpoint FILE.")
-        # SIGTERM (e.g. a job scheduler) is handled like Ctrl-C: checkpoint, then exit
-        signal.signal(signal.SIGTERM, _terminate_as_interrupt)
         result = jh.run_hybrid(problem, args.method, seed=args.seed, settings=settings,
                                progress=args.progress, checkpoint=args.checkpoint,
                                checkpoint_every=args.checkpoint_every, resume=args.resume)
@@ -310,6 +371,8 @@ def _identify(args) -> int:
                   file=sys.stderr, flush=True)
         result = jh.multistart(problem, starts, solver=args.method,
                                max_steps=args.max_steps or 200)
+    if stop_requested() and result.result != "interrupted":  # Ctrl-C during a local solve
+        result = result.with_outcome("interrupted")
     d = result.to_dict()
     d["problem"] = spec
     if "history" in result.extra:
@@ -339,7 +402,21 @@ def _identify(args) -> int:
                          problem.space.upper, hist_png, title=result.solver)
     text = str(result) + (f"\n  wrote {args.out}" if args.out else "")
     _print(args, d, text)
-    return 130 if result.result == "interrupted" else 0
+    return _exit_status(result)
+
+
+EXIT_HELP = ("Exit status: 0 success; 2 bad input (one-line message); 3 the fit stopped "
+             "short (step limit reached, non-finite cost or solver failure: the result is "
+             "written and says so); 130 interrupted (Ctrl-C/SIGTERM: the best point so far "
+             "and the checkpoint are written).")
+
+
+def _exit_status(result) -> int:
+    """0 for a converged fit, 130 for an interrupted run, 3 for one that stopped short or
+    failed (max steps, non-finite cost, solver failure)."""
+    if result.result == "interrupted":
+        return 130
+    return 0 if result.success else 3
 
 
 # -- report -------------------------------------------------------------------------------
@@ -348,6 +425,8 @@ def _identify(args) -> int:
 def _report(args) -> int:
     from jaxhyst.analysis import identifiability, profile_likelihood
     from jaxhyst.io import parameters_from_json, read_json
+
+    _check_outputs(args)
 
     saved = read_json(args.result)
     if "problem" not in saved:
@@ -378,6 +457,11 @@ def _report(args) -> int:
 
 def _reproduce(args) -> int:
     from jaxhyst.io import atomic_write_text, write_json
+
+    _check_outputs(args, directory="out")
+    out = Path(args.out) if args.out else None
+    if args.study != "table1":
+        return _reproduce_experiment(args, out)
     from jaxhyst.study import METHODS, table1_study
 
     methods = args.methods.split(",") if args.methods else list(METHODS)
@@ -387,21 +471,70 @@ def _reproduce(args) -> int:
     study = table1_study(quick=args.quick, methods=methods, seeds=tuple(args.seeds),
                          progress=not args.json)
     problem = study.pop("problem")
-    out = Path(args.out) if args.out else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
-        write_json(out / "table1.json", study)
-        atomic_write_text(out / "table1.md", study["markdown"] + "\n")
-        if args.png:
+        if args.png:  # figures first: a failure leaves no partial set of files
             from jaxhyst.plots import plot_history
 
             for r in study["runs"]:
                 plot_history(r["history"], problem.space.names, problem.space.lower,
                              problem.space.upper, out / f"{r['method']}_s{r['seed']}.png",
                              title=f"{r['method']}, seed {r['seed']}")
+        write_json(out / "table1.json", study)
+        atomic_write_text(out / "table1.md", study["markdown"] + "\n")
     summary = {k: v for k, v in study.items() if k != "runs"}
     summary["runs"] = [{k: v for k, v in r.items() if k != "history"} for r in study["runs"]]
     text = study["markdown"] + (f"\n\nwrote {out}/table1.md, table1.json" if out else "")
+    _print(args, summary, text)
+    return 0
+
+
+def _reproduce_experiment(args, out) -> int:
+    """``reproduce table3`` / ``table2``: GATR1 on noisy synthetic strain of the paper's
+    experiments (jaxhyst.study)."""
+    import numpy as np
+
+    from jaxhyst.io import atomic_write_text, write_json
+    from jaxhyst.study import table2_study, table3_study
+
+    if args.methods:
+        raise CLIError(f"--methods: {args.study} is identified by GATR1 only (as in the "
+                       "paper); leave --methods out.")
+    if args.study == "table3":
+        study = table3_study(quick=args.quick, seed=args.seeds[0], progress=not args.json)
+    else:
+        seeds = tuple(args.seeds) if len(args.seeds) > 1 else (0, 1, 2)
+        study = table2_study(quick=args.quick, seeds=seeds, progress=not args.json)
+    name = args.study
+    figures = []
+    if out and args.png:
+        from jaxhyst.plots import plot_frequency_response, plot_table3_loops
+
+        out.mkdir(parents=True, exist_ok=True)
+        if name == "table3":
+            import jaxhyst as jh
+            from jaxhyst.study import TABLE3_FREQUENCIES
+
+            plot_table3_loops(study["loops"], out / "fig7_loops.png",
+                              title="Actuator2, Hb = 16 kA/m, H_AC = 8 kA/m (Table 3 values)")
+            p = jh.TABLE3[1000]
+            dense = np.logspace(0, 4, 300)
+            fm = np.array(TABLE3_FREQUENCIES, dtype=float)
+            plot_frequency_response(
+                dense, np.asarray(jh.frequency_response(p, jh.ACTUATOR2, dense)),
+                out / "fig8_frequency_response.png",
+                title="ε/λ of Actuator2 (Table 3, 1000 Hz column), drive frequencies marked",
+                marks=(fm, np.asarray(jh.frequency_response(p, jh.ACTUATOR2, fm))))
+            figures = ["fig7_loops.png", "fig8_frequency_response.png"]
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(out / f"{name}.json", study)
+        atomic_write_text(out / f"{name}.md", study["markdown"] + "\n")
+    summary = {k: v for k, v in study.items() if k != "loops"}
+    wrote = ", ".join([f"{name}.md", f"{name}.json", *figures])
+    text = (f"{name}: GATR1 on synthetic strain with noise σ = {study['noise']:g}·max|ε| "
+            f"(✗: the truth outside the 95 % interval)\n\n" + study["markdown"]
+            + (f"\n\nwrote {out}/: {wrote}" if out else ""))
     _print(args, summary, text)
     return 0
 
@@ -413,6 +546,8 @@ def _frequency_response(args) -> int:
     import numpy as np
 
     import jaxhyst as jh
+
+    _check_outputs(args)
 
     params = _params(args.params)
     actuator = _actuator(args.actuator)
@@ -453,11 +588,12 @@ def _frequency_response(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="jaxhyst",
         description="Jiles–Atherton hysteresis of magnetostrictive actuators: simulate, "
         "identify parameters from measured loops, report what the data determine. "
         + UNITS_HELP,
+        epilog=EXIT_HELP,
     )
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -473,17 +609,18 @@ def build_parser() -> argparse.ArgumentParser:
                      "(a result JSON also works)")
     sim.add_argument("--actuator", default="actuator1",
                      help="actuator1, actuator2 or a JSON file {Ar, lr, n, Hb}")
-    sim.add_argument("--frequency", type=float, default=100.0, help="drive frequency, Hz")
-    sim.add_argument("--amplitude", type=float, default=0.77, help="current amplitude, A")
-    sim.add_argument("--offset", type=float, default=1.53, help="current offset (bias), A")
-    sim.add_argument("--field-amplitude", type=float, help="field amplitude, A/m (instead "
+    sim.add_argument("--frequency", type=POSITIVE, default=100.0, help="drive frequency, Hz")
+    sim.add_argument("--amplitude", type=FINITE, default=0.77, help="current amplitude, A")
+    sim.add_argument("--offset", type=FINITE, default=1.53, help="current offset (bias), A")
+    sim.add_argument("--field-amplitude", type=FINITE, help="field amplitude, A/m (instead "
                      "of a current)")
-    sim.add_argument("--field-offset", type=float, default=0.0, help="field offset, A/m")
+    sim.add_argument("--field-offset", type=FINITE, default=0.0, help="field offset, A/m")
     sim.add_argument("--drive", help="CSV/TSV with t and H (or I) columns")
     sim.add_argument("--columns", help="column names for a file without a header")
-    sim.add_argument("--periods", type=float, default=1.0, help="observed periods")
-    sim.add_argument("--samples-per-period", type=int, default=200)
-    sim.add_argument("--substeps", type=int, default=2, help="RK4 substeps per sample")
+    sim.add_argument("--periods", type=POSITIVE, default=1.0, help="observed periods")
+    sim.add_argument("--samples-per-period", type=POSITIVE_INT, default=200,
+                     help="samples per drive period")
+    sim.add_argument("--substeps", type=POSITIVE_INT, default=2, help="RK4 substeps per sample")
     sim.add_argument("--variant", choices=VARIANTS, default="energy",
                      help="Jiles–Atherton form (energy: the paper's)")
     sim.add_argument("--csv", help="write the signals here (SI units in the header)")
@@ -495,11 +632,12 @@ def build_parser() -> argparse.ArgumentParser:
         "identify", help="identify parameters from a measured loop",
         description="Identify the free parameters from a data file (CSV/TSV; columns t, H "
         "or I, and the observed signal y, strain, lambda, M or B; a 'loop' column separates "
-        "loops; units in the header as 'y [um]' or 'y_um'). " + UNITS_HELP)  # fmt: skip
+        "loops; units in the header as 'y [um]' or 'y_um'). " + UNITS_HELP,
+        epilog=EXIT_HELP)  # fmt: skip
     ide.add_argument("data", help="data file")
     ide.add_argument("--output", choices=("y", "strain", "lambda", "M", "B"),
                      help="observed column (needed when the file has several)")
-    ide.add_argument("--loop", type=int, help="which loop of a multi-loop file")
+    ide.add_argument("--loop", type=COUNT, help="which loop of a multi-loop file")
     ide.add_argument("--joint", action="store_true", help="fit all loops of the file as one "
                      "problem (parameters shared unless listed in --per-loop)")
     ide.add_argument("--per-loop", help="with --joint: parameters free per loop, e.g. "
@@ -517,23 +655,25 @@ def build_parser() -> argparse.ArgumentParser:
     ide.add_argument("--params", help="known values for --fix without a value")
     ide.add_argument("--method", default="GATR1", choices=HYBRID + LOCAL,
                      help="a hybrid GA (paper §3.4) or a local solver (multi-start)")
-    ide.add_argument("--starts", type=int, default=8, help="local solvers: random starts, "
+    ide.add_argument("--starts", type=POSITIVE_INT, default=8, help="local solvers: random starts, "
                      "solved in one vmapped batch (1: one start at the centre of the box)")
-    ide.add_argument("--max-steps", type=int, help="local solver iterations (hybrids: T3)")
-    ide.add_argument("--generations", type=int, help="hybrids: FCGA generations T2 "
+    ide.add_argument("--max-steps", type=POSITIVE_INT, help="local solver iterations (hybrids: T3)")
+    ide.add_argument("--generations", type=POSITIVE_INT, help="hybrids: FCGA generations T2 "
                      "(paper 295)")
-    ide.add_argument("--population", type=int, help="hybrids: BCGA population q1 (paper "
+    ide.add_argument("--population", type=POSITIVE_INT, help="hybrids: BCGA population q1 (paper "
                      "120; q2 = q1/4)")
-    ide.add_argument("--seed", type=int, default=0)
+    ide.add_argument("--seed", type=COUNT, default=0,
+                     help="random seed (integer >= 0): GA, random starts")
     ide.add_argument("--checkpoint", help="hybrids: checkpoint file (.npz), written "
                      "atomically every --checkpoint-every generations and on Ctrl-C")
-    ide.add_argument("--checkpoint-every", type=int, default=10)
+    ide.add_argument("--checkpoint-every", type=POSITIVE_INT, default=10,
+                     help="hybrids: generations between checkpoints")
     ide.add_argument("--resume", action="store_true", help="continue from --checkpoint")
-    ide.add_argument("--run-in-periods", type=int, default=1,
+    ide.add_argument("--run-in-periods", type=COUNT, default=1,
                      help="copies of the record simulated before it (transient)")
-    ide.add_argument("--substeps", type=int, default=2, help="RK4 substeps per sample "
+    ide.add_argument("--substeps", type=POSITIVE_INT, default=2, help="RK4 substeps per sample "
                      "(raise to 4–8 for coarse B–H loops)")
-    ide.add_argument("--progress", type=int, default=10,
+    ide.add_argument("--progress", type=COUNT, default=10,
                      help="progress line every N generations on stderr (0: quiet)")
     ide.add_argument("--out", help="write the result (JSON, names and units) here")
     ide.add_argument("--png", help="measured vs fitted loop with the error (and, for "
@@ -549,53 +689,73 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("result", help="result JSON from identify --out")
     rep.add_argument("--profile", action="append", help="profile likelihood of this "
                      "parameter (repeatable)")
-    rep.add_argument("--profile-points", type=int, default=21)
-    rep.add_argument("--max-rel-se", type=float, default=0.5,
+    rep.add_argument("--profile-points", type=POSITIVE_INT, default=21,
+                     help="grid points of each profile")
+    rep.add_argument("--max-rel-se", type=POSITIVE, default=0.5,
                      help="relative standard error above which a parameter is poorly "
                      "determined")
     rep.add_argument("--png", help="singular values and correlation matrix figure")
-    rep.add_argument("--json", action="store_true")
+    rep.add_argument("--json", action="store_true",
+                    help="print the result as one JSON object on stdout")
     rep.set_defaults(func=_report)
 
     rp = sub.add_parser("reproduce", help="reproduce a study of the paper",
-                        description="Reproduce the paper's Table 1 simulation study with the "
-                        "four hybrids (GATR1, GALM1, GATR2, GALM2).")
-    rp.add_argument("study", choices=("table1",))
-    rp.add_argument("--quick", action="store_true", help="small GA, coarse record (about a "
-                    "minute)")
-    rp.add_argument("--seeds", type=int, nargs="+", default=[0])
+                        description="Reproduce a study of the paper: table1, the simulation "
+                        "study with the four hybrids (GATR1, GALM1, GATR2, GALM2); table3, "
+                        "Actuator2 at 10-2000 Hz identified by GATR1 from noisy synthetic "
+                        "strain (Figs 7, 8 with --png); table2, the quasi-static Actuator1 "
+                        "identified three times by GATR1. Progress on stderr.")
+    rp.add_argument("study", choices=("table1", "table2", "table3"),
+                    help="which study: table1, table2 or table3")
+    rp.add_argument("--quick", action="store_true", help="small GA, coarse record (a few "
+                    "minutes on 2 cores, mostly compiling)")
+    rp.add_argument("--seeds", type=COUNT, nargs="+", default=[0],
+                    help="GA seeds (integers >= 0), one run per method and seed")
     rp.add_argument("--methods", help="comma-separated subset of the hybrids")
-    rp.add_argument("--out", help="directory for table1.md, table1.json (and figures)")
-    rp.add_argument("--png", action="store_true", help="with --out: GA history figures")
-    rp.add_argument("--json", action="store_true")
+    rp.add_argument("--out", help="directory for <study>.md, <study>.json (and figures)")
+    rp.add_argument("--png", action="store_true", help="with --out: figures (table1: GA "
+                    "histories; table3: Figs 7 and 8)")
+    rp.add_argument("--json", action="store_true",
+                    help="print the result as one JSON object on stdout")
     rp.set_defaults(func=_reproduce)
 
     fr = sub.add_parser("frequency-response", help="structural response ε/λ (eq 13)",
                         description="Magnitude and phase lag of G(jω) = (Ar·E/lr)/(Mz(jω)² + "
                         "Cz·jω + Kz). " + UNITS_HELP)
     fr.add_argument("--params", default="table1", help="table1, table3:<Hz> or a JSON file")
-    fr.add_argument("--actuator", default="actuator1")
+    fr.add_argument("--actuator", default="actuator1",
+                    help="actuator1, actuator2 or a JSON file {Ar, lr, n, Hb}")
     fr.add_argument("--frequencies", help="comma-separated, Hz")
-    fr.add_argument("--fmin", type=float, default=1.0)
-    fr.add_argument("--fmax", type=float, default=1e4)
-    fr.add_argument("--points", type=int, default=25)
+    fr.add_argument("--fmin", type=POSITIVE, default=1.0, help="lowest frequency, Hz")
+    fr.add_argument("--fmax", type=POSITIVE, default=1e4, help="highest frequency, Hz")
+    fr.add_argument("--points", type=POSITIVE_INT, default=25,
+                    help="log-spaced frequencies between --fmin and --fmax")
     fr.add_argument("--png", help="magnitude and phase figure (Fig 8)")
-    fr.add_argument("--json", action="store_true")
+    fr.add_argument("--json", action="store_true",
+                    help="print the result as one JSON object on stdout")
     fr.set_defaults(func=_frequency_response)
     return parser
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
     try:
-        return args.func(args)
+        args = build_parser().parse_args(argv)
+    except SystemExit as done:  # --help, or a usage error already reported in one line
+        return done.code if isinstance(done.code, int) else 2
+    from jaxhyst import enable_compilation_cache
+    from jaxhyst._interrupt import run_interruptibly
+
+    enable_compilation_cache()  # a second run loads its compiled programs from disk
+    try:
+        # the work runs in a worker thread: Ctrl-C is honoured even while XLA compiles
+        return run_interruptibly(args.func, args)
     except KeyboardInterrupt:
         print(f"jaxhyst {args.command}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # output piped into e.g. `head`: not an error of the input
         sys.stderr.close()
         return 0
-    except (ValueError, TypeError, ImportError, OSError) as err:
+    except (ValueError, TypeError, ImportError, OSError, FloatingPointError) as err:
         msg = " ".join(str(err).split())  # one line
         print(f"jaxhyst {args.command}: error: {msg}", file=sys.stderr)
         return 2

@@ -25,6 +25,10 @@ def _concrete(x) -> bool:
 #: uniformly sampled (the structural step then corrects each step to second order).
 UNIFORM_TOLERANCE = 1e-4
 
+#: Largest applied field accepted, A/m (1e9 A/m ≈ 1.26 kT: beyond any laboratory field; a
+#: larger value is a unit or column mistake and would overflow the model).
+MAX_FIELD = 1e9
+
 
 class Drive(eqx.Module):
     """Sampled applied field.
@@ -80,6 +84,7 @@ class Drive(eqx.Module):
                     f"Drive field H contains NaN or inf at samples {bad.tolist()}; "
                     "remove or interpolate those samples."
                 )
+            _check_field_range(Hn, "Drive field H")
         if _concrete(t):
             tn = np.asarray(t)
             if not np.all(np.isfinite(tn)):
@@ -154,6 +159,7 @@ def drive_from_record(t, H, *, run_in_periods: int = 1, ramp_fraction: float = 0
     if not np.all(np.isfinite(H)):
         bad = np.flatnonzero(~np.isfinite(H))[:5].tolist()
         raise ValueError(f"The field record contains NaN or inf at samples {bad}.")
+    _check_field_range(H, "The field record")
     if t is None:
         t = np.arange(H.shape[0], dtype=np.float64)  # rate-independent: any time scale
     t = np.asarray(t, dtype=np.float64)
@@ -176,6 +182,14 @@ def drive_from_record(t, H, *, run_in_periods: int = 1, ramp_fraction: float = 0
     t_all = np.concatenate([t[0] + dt * np.arange(-n_pre, 0), t])
     H_all = np.concatenate([Hpre, H])
     return Drive(t_all, H_all, run_in=n_pre)
+
+
+def _check_field_range(H, what: str) -> None:
+    big = np.flatnonzero(np.abs(H) > MAX_FIELD)
+    if big.size:
+        i = int(big[0])
+        raise ValueError(f"{what} at sample {i} is {H[i]:g} A/m, beyond {MAX_FIELD:g} A/m "
+                         "(no laboratory field); check its unit (A/m) and column.")
 
 
 def _check_number(name, value, rule, unit):

@@ -124,6 +124,34 @@ def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
+#: Physical range of each parameter: name → (test on a numpy value, the rule in words).
+PHYSICAL_RULES = {
+    "Ms": (lambda v: v > 0, "must be > 0 (saturation magnetization, A/m)"),
+    "a": (lambda v: v > 0, "must be > 0 (Langevin width, A/m)"),
+    "k": (lambda v: v > 0, "must be > 0 (pinning parameter, A/m)"),
+    "c": (lambda v: (v >= 0) & (v <= 1), "must lie in [0, 1] (reversibility)"),
+    "lambda_s": (lambda v: v >= 0, "must be >= 0 (saturation magnetostriction)"),
+    "E": (lambda v: v >= 0, "must be >= 0 (Young's modulus, N/m^2)"),
+    "Kz": (lambda v: v > 0, "must be > 0 (stiffness, N/m)"),
+    "Mz": (lambda v: v > 0, "must be > 0 (moving mass, kg)"),
+    "Cz": (lambda v: v >= 0, "must be >= 0 (damping, N*s/m)"),
+}
+
+
+def check_value(name: str, value, what: str) -> float:
+    """``value`` as a float if it is finite and physically valid for the parameter
+    ``name`` (`PHYSICAL_RULES`); else ``ValueError`` naming ``what`` (where it came from)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be a number; got {value!r}.") from None
+    if not np.isfinite(v):
+        raise ValueError(f"{what} is not finite ({value!r}); give a finite value.")
+    if name in PHYSICAL_RULES and not PHYSICAL_RULES[name][0](np.float64(v)):
+        raise ValueError(f"{what} = {v:g}: {name} {PHYSICAL_RULES[name][1]}.")
+    return v
+
+
 def check_parameters(p: Parameters) -> None:
     """Raise ``ValueError`` naming the parameter if ``p`` is physically invalid.
 
@@ -131,17 +159,7 @@ def check_parameters(p: Parameters) -> None:
     λs, E ≥ 0; Cz ≥ 0; 0 ≤ c ≤ 1. Traced values (inside jit/vmap) cannot be inspected
     and are skipped; the public `simulate` checks before tracing.
     """
-    rules = {
-        "Ms": (lambda v: v > 0, "must be > 0 (saturation magnetization, A/m)"),
-        "a": (lambda v: v > 0, "must be > 0 (Langevin width, A/m)"),
-        "k": (lambda v: v > 0, "must be > 0 (pinning parameter, A/m)"),
-        "c": (lambda v: (v >= 0) & (v <= 1), "must lie in [0, 1] (reversibility)"),
-        "lambda_s": (lambda v: v >= 0, "must be >= 0 (saturation magnetostriction)"),
-        "E": (lambda v: v >= 0, "must be >= 0 (Young's modulus, N/m^2)"),
-        "Kz": (lambda v: v > 0, "must be > 0 (stiffness, N/m)"),
-        "Mz": (lambda v: v > 0, "must be > 0 (moving mass, kg)"),
-        "Cz": (lambda v: v >= 0, "must be >= 0 (damping, N*s/m)"),
-    }
+    rules = PHYSICAL_RULES
     for name in NAMES:
         value = getattr(p, name)
         if not _is_concrete(value):

@@ -99,15 +99,11 @@ def plot_history(history: list[dict], names, lower, upper, path, title: str = ""
     """GA history: best and mean fitness per generation (the paper's Fig 3) and the best
     individual's parameters, scaled to their search box (Fig 4)."""
     plt = _pyplot()
-    from .params import NAMES
-
+    del lower, upper  # (the history stores box coordinates)
     g = np.array([h["generation"] for h in history])
     best = np.array([h["best_fitness"] for h in history])
     mean = np.array([h["mean_fitness"] for h in history])
-    theta = np.array([h["best_params"] for h in history])
-    idx = [NAMES.index(n) for n in names]
-    lower, upper = np.asarray(lower), np.asarray(upper)
-    u = (theta[:, idx] - lower) / np.where(upper > lower, upper - lower, 1.0)
+    u = np.array([h["best_u"] for h in history])  # position in the box, order of names
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(13, 4.5), constrained_layout=True)
     a1.semilogy(g, best, label="best F")
     a1.semilogy(g, np.where(mean > 0, mean, np.nan), label="mean F")
@@ -151,6 +147,28 @@ def plot_frequency_response(freq, G, path, title: str = "", marks=None) -> None:
     a2.set(xlabel="frequency (Hz)", ylabel="phase lag (°)")
     for ax in (a1, a2):
         ax.grid(alpha=0.3, which="both")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_table3_loops(loops: dict, path, title: str = "") -> None:
+    """Fig 7: the magnetostriction λ(H) and strain ε(H) loops of the Table 3 study
+    (``loops``: frequency → {"H", "lam", "strain", "data_strain"}), one colour per
+    frequency; the noisy synthetic strain the identification saw as dots."""
+    plt = _pyplot()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.5), constrained_layout=True)
+    for i, (f, lp) in enumerate(sorted(loops.items(), key=lambda kv: float(kv[0]))):
+        H = np.asarray(lp["H"]) / 1e3
+        a1.plot(H, np.asarray(lp["lam"]) * 1e6, color=f"C{i}", label=f"{f} Hz")
+        a2.plot(H, np.asarray(lp["strain"]) * 1e6, color=f"C{i}", label=f"{f} Hz")
+        a2.plot(H, np.asarray(lp["data_strain"]) * 1e6, ".", color=f"C{i}", ms=2)
+    a1.set(xlabel="H (kA/m)", ylabel="λ (ppm)", title="magnetostriction")
+    a2.set(xlabel="H (kA/m)", ylabel="ε (ppm)", title="strain (lines: model, dots: data)")
+    for ax in (a1, a2):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
     fig.savefig(path, dpi=120)
     plt.close(fig)
 

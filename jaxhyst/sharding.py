@@ -32,6 +32,12 @@ def batch_sharding(n: int, shard: bool | None = None):
     return NamedSharding(Mesh(np.array(devices), ("batch",)), PartitionSpec("batch"))
 
 
+def shardable(n: int) -> bool:
+    """True when there are several devices and a batch of ``n`` splits evenly over them."""
+    count = jax.device_count()
+    return count > 1 and n % count == 0
+
+
 def place(x, sharding):
     """``x`` on its sharding (or unchanged when ``sharding`` is None)."""
     return x if sharding is None else jax.device_put(x, sharding)

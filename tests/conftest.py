@@ -7,7 +7,11 @@ import tempfile
 # Tests import the shared problems in tests/helpers.py.
 sys.path.insert(0, os.path.dirname(__file__))
 
-import jaxhyst  # noqa: E402,F401  (float64 on import)
+import jaxhyst  # noqa: E402  (float64 on import)
+
+# as the command line does: the CLI chains (subprocesses) and the in-process tests share
+# compiled programs, and a second run of the suite loads them from disk
+jaxhyst.enable_compilation_cache()
 
 #: Background command-line chains (tests/cli_chains.py): name → (directory, process).
 CLI_CHAINS: dict = {}
@@ -26,7 +30,7 @@ def pytest_collection_finish(session):
     root = tempfile.mkdtemp(prefix="jaxhyst-cli-")
     script = os.path.join(os.path.dirname(__file__), "cli_chains.py")
     nice = ["nice", "-n", "10"] if shutil.which("nice") else []
-    for chain in ("reproduce", "sharding", "e2e", "resume"):
+    for chain in ("reproduce", "experiments", "sharding", "e2e", "resume"):
         d = os.path.join(root, chain)
         os.makedirs(d)
         # niced (the `nice` command: a preexec_fn would fork the multithreaded JAX

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -92,12 +94,13 @@ def test_roulette_frequency_is_proportional_to_fitness():
     assert freq[4] == 0.0
 
 
-SMALL = jh.GASettings(q1=24, q2=10, T1=2, T2=8, T3=20, local_steps=4)
+SMALL = jh.GASettings(q1=24, q2=10, T1=2, T2=8, T3=20, local_steps=4, check_steps=30)
+TINY = jh.GASettings(q1=8, q2=4, T1=1, T2=2, T3=3, local_steps=2, check_steps=5)
 
 
 @pytest.fixture(scope="module")
 def problem():
-    return table1_problem(spp=50)
+    return table1_problem(spp=25)
 
 
 @pytest.fixture(scope="module")
@@ -117,33 +120,80 @@ def test_short_gatr1_improves_by_orders_of_magnitude(gatr1_run):
     assert all(b2 <= b1 for b1, b2 in zip(best, best[1:], strict=False))  # elitism
     assert jh.TABLE1_BOUNDS.contains(gatr1_run.params)
     assert gatr1_run.report is not None and gatr1_run.report.rank == 7  # hybrids report too
+    check = gatr1_run.extra["convergence_check"]
+    assert check is not None and gatr1_run.result == check["result"]
+
+
+@pytest.mark.parametrize("method", jh.names.HYBRID_NAMES)
+def test_every_hybrid_runs_and_ends_with_a_convergence_check(problem, method):
+    res = jh.run_hybrid(problem, method, seed=0, settings=TINY, report=False)
+    history = res.extra["history"]
+    assert len(history) == TINY.T1 + TINY.T2 and np.isfinite(res.cost)
+    check = res.extra["convergence_check"]
+    assert check["steps"] <= TINY.check_steps and res.result == check["result"]
+    assert res.cost <= history[-1]["best_cost"] * (1 + 1e-12)
+    assert (res.extra["after"] is not None) == (method in ("GATR2", "GALM2"))
+    # 5 LM steps from a tiny GA's best cannot converge: the run says it stopped short
+    assert res.result == "max_steps_reached" and not res.success
+
+
+def test_a_solver_object_plugs_into_the_ga(problem):
+    import optimistix as optx
+
+    method = jh.HybridGA(optx.Dogleg(rtol=1e-10, atol=1e-12), "after", "GA+dogleg")
+    res = jh.run_hybrid(problem, method, seed=0, settings=TINY, report=False)
+    assert res.extra["after"] is not None and res.solver == "GA+dogleg"
 
 
 def test_same_seed_same_result_and_different_seeds_differ(problem, gatr1_run):
-    again = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL)
+    again = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, report=False)
     np.testing.assert_array_equal(again.params.to_array(), gatr1_run.params.to_array())
     assert again.cost == gatr1_run.cost
-    other = jh.run_hybrid(problem, "GA", seed=4, settings=SMALL)
-    same_seed_plain = jh.run_hybrid(problem, "GA", seed=3, settings=SMALL)
+    other = jh.run_hybrid(problem, "GA", seed=4, settings=TINY, report=False)
+    same_seed_plain = jh.run_hybrid(problem, "GA", seed=3, settings=TINY, report=False)
     assert not np.array_equal(other.params.to_array(), same_seed_plain.params.to_array())
 
 
 def test_checkpoint_resume_gives_the_uninterrupted_result(problem, gatr1_run, tmp_path):
     path = tmp_path / "run.npz"
     part = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
-                         checkpoint_every=2, stop_after=5)
-    assert part.result == "interrupted" and path.exists()
+                         checkpoint_every=2, stop_after=5, report=False)
+    assert part.result == "interrupted" and path.exists() and not part.success
     assert len(part.extra["history"]) == 5
     resumed = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
-                            resume=True)
+                            resume=True, report=False)
     np.testing.assert_array_equal(resumed.params.to_array(), gatr1_run.params.to_array())
     assert len(resumed.extra["history"]) == SMALL.T1 + SMALL.T2
     with pytest.raises(ValueError, match="belongs to another run"):
         jh.run_hybrid(problem, "GATR1", seed=99, settings=SMALL, checkpoint=path, resume=True)
 
 
+@pytest.mark.parametrize("content, fragment", [
+    (None, "does not exist"),
+    (b"", "not a readable jaxhyst checkpoint"),
+    (b"PK\x03\x04 truncated zip", "not a readable jaxhyst checkpoint"),
+    (b"generation,cost\n1,2\n", "not a readable jaxhyst checkpoint"),
+])
+def test_bad_checkpoints_are_refused_in_one_line(problem, tmp_path, content, fragment):
+    path = tmp_path / "bad.npz"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(jh.identify.CheckpointError, match=fragment) as err:
+        jh.run_hybrid(problem, "GA", seed=0, settings=TINY, checkpoint=path, resume=True)
+    assert "\n" not in str(err.value)
+
+
+def test_a_checkpoint_of_another_shape_is_refused(problem, tmp_path):
+    path = tmp_path / "other.npz"
+    jh.run_hybrid(problem, "GA", seed=0, settings=TINY, checkpoint=path, stop_after=1,
+                  report=False)
+    other = dataclasses.replace(TINY, q1=12)
+    with pytest.raises(jh.identify.CheckpointError, match="does not match this run"):
+        jh.run_hybrid(problem, "GA", seed=0, settings=other, checkpoint=path, resume=True)
+
+
 def test_after_placement_runs_t3_local_steps(problem):
-    res = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL)
+    res = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False)
     after = res.extra["after"]
     assert after is not None and 1 <= after["steps"] <= SMALL.T3
     assert res.cost <= after["cost_before"]
@@ -164,37 +214,38 @@ def test_failed_individuals_get_zero_fitness_and_are_counted(problem):
     assert np.any(~np.isfinite(costs)) and np.any(np.isfinite(costs))
     fit = np.asarray(flaky.fitness_from_cost(jnp.asarray(costs)))
     assert np.all(fit[~np.isfinite(costs)] == 0) and np.all(fit[np.isfinite(costs)] > 0)
-    res = jh.run_hybrid(flaky, "GA", seed=0, settings=jh.GASettings(q1=64, q2=10, T1=1, T2=2))
+    res = jh.run_hybrid(flaky, "GA", seed=0, report=False,
+                        settings=jh.GASettings(q1=64, q2=10, T1=1, T2=2, check_steps=0))
     history = res.extra["history"]
     assert history[0]["failures"] > 0 and res.extra["failures"] >= history[0]["failures"]
-    assert np.isfinite(res.cost) and float(u_first(res, flaky)) <= 0.5
+    assert np.isfinite(res.cost) and float(flaky.space.u_from_params(res.params)[0]) <= 0.5
+    assert res.result == "max_steps_reached"  # no convergence check: never "successful"
 
 
-def u_first(res, problem):
-    return problem.space.u_from_params(res.params)[0]
+def test_ctrl_c_stops_after_the_generation_keeps_best_and_resumes_exactly(
+        problem, gatr1_run, tmp_path, monkeypatch):
+    import os
+    import signal
 
-
-def test_ctrl_c_mid_generation_keeps_best_and_resumes_exactly(problem, gatr1_run, tmp_path,
-                                                               monkeypatch):
     from jaxhyst.identify import hybrid
 
-    real_evaluate = hybrid._evaluate
+    real = hybrid.fcga_generation
     calls = {"n": 0}
 
-    def interrupting(prob, U):
+    def interrupting(*args):
         calls["n"] += 1
-        if calls["n"] == 7:  # inside generation 7, after six complete generations
-            raise KeyboardInterrupt
-        return real_evaluate(prob, U)
+        if calls["n"] == 4:  # during generation 6 (two BCGA generations first)
+            os.kill(os.getpid(), signal.SIGINT)
+        return real(*args)
 
     path = tmp_path / "ctrl_c.npz"
-    monkeypatch.setattr(hybrid, "_evaluate", interrupting)
+    monkeypatch.setattr(hybrid, "fcga_generation", interrupting)
     part = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
-                         checkpoint_every=100)
-    monkeypatch.setattr(hybrid, "_evaluate", real_evaluate)
+                         checkpoint_every=100, report=False)
+    monkeypatch.setattr(hybrid, "fcga_generation", real)
     assert part.result == "interrupted" and np.isfinite(part.cost)
-    assert len(part.extra["history"]) == 6
+    assert len(part.extra["history"]) == 6  # the generation under way was completed
     resumed = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
-                            resume=True)
+                            resume=True, report=False)
     np.testing.assert_array_equal(resumed.params.to_array(), gatr1_run.params.to_array())
     assert [h["generation"] for h in resumed.extra["history"]] == list(range(1, 11))

@@ -124,7 +124,7 @@ def test_95_percent_intervals_cover_the_truth_in_95_percent_of_noisy_replicates(
           + ", ".join(f"{n} {c:.3f}" for n, c in zip(fits["names"], cov, strict=True))
           + f" (accepted {0.95 - tol:.3f} … {0.95 + tol:.3f})")
     assert np.all(np.abs(cov - 0.95) <= tol), cov
-    ok = np.array([r in ("successful", "nonlinear_max_steps_reached") for r in fits["results"]])
+    ok = np.array([r in ("successful", "max_steps_reached") for r in fits["results"]])
     assert ok.all() and np.all(np.isfinite(fits["cost"]))
 
 

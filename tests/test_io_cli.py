@@ -30,7 +30,8 @@ def test_cli_simulate_writes_csv_and_png(tmp_path, capsys):
 def test_cli_bad_input_is_one_line_without_traceback(capsys):
     assert main(["simulate", "--frequency", "-5"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "frequency must be" in err and "Traceback" not in err
+    assert err.count("\n") == 0 and "Traceback" not in err
+    assert "--frequency" in err and "must be a positive number" in err, err
 
 
 def test_atomic_write_leaves_old_file_on_failure_and_normal_permissions(tmp_path):
@@ -167,3 +168,58 @@ def test_joint_bh_problem_from_a_multi_loop_file(tmp_path):
     assert float(problem.cost_u(u)) < 1e-24
     with pytest.raises(ValueError, match="choose one with --loop"):
         build_problem({**spec, "joint": False})
+
+
+def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
+    """A fit cut off at its step limit is not a success: the result says
+    ``max_steps_reached`` and the command exits 3 (documented in ``--help``)."""
+    from jaxhyst.cli import build_parser
+    from jaxhyst.identify.joint import NO_ACTUATOR
+
+    H = 20e3 * np.cos(2 * np.pi * np.arange(41) / 40)
+    sim = jh.simulate(jh.TABLE1_TRUE, NO_ACTUATOR, jh.drive_from_record(None, H),
+                      variant=jh.ClassicJA(), substeps=2)
+    B = 4e-7 * np.pi * (H + np.asarray(sim.observed("M")))
+    f = tmp_path / "bh.csv"
+    f.write_text("H,B\n" + "".join(f"{float(h)!r},{float(b)!r}\n"
+                                    for h, b in zip(H, B, strict=True)))
+    out = tmp_path / "r.json"
+    argv = ["identify", str(f), "--variant", "classic", "--method", "lm", "--starts", "1",
+            "--max-steps", "2", "--fix", f"Ms={jh.TABLE1_TRUE.Ms}", "--out", str(out),
+            "--json", "--progress", "0"]
+    assert main(argv) == 3
+    res = json.loads(out.read_text())
+    assert res["outcome"] == "max_steps_reached" and res["success"] is False
+    assert json.loads(capsys.readouterr().out)["outcome"] == "max_steps_reached"
+    helps = build_parser()._subparsers._group_actions[0].choices["identify"].format_help()
+    assert "3 the fit stopped" in " ".join(helps.split())
+
+
+def test_ctrl_c_twice_during_compilation_exits_at_once(tmp_path):
+    """The first SIGINT is acknowledged even while XLA compiles (the CLI's work runs in a
+    worker thread), the second ends the process at once with status 130."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    csv = tmp_path / "sim.csv"
+    assert main(["simulate", "--samples-per-period", "50", "--csv", str(csv)]) == 0
+    proc = subprocess.Popen([sys.executable, "-m", "jaxhyst.cli", "identify", str(csv),
+                             "--output", "y", "--method", "GATR1", "--progress", "1"],
+                            stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "JAXHYST_CACHE_DIR": "off"})
+    deadline = time.monotonic() + 60
+    line = ""
+    while "compiling" not in line and time.monotonic() < deadline:  # the GA is compiling
+        line = proc.stderr.readline()
+    proc.send_signal(signal.SIGINT)
+    time.sleep(0.5)
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    rc = proc.wait(timeout=30)
+    took = time.monotonic() - t0
+    err = proc.stderr.read()
+    assert rc == 130, err
+    assert "interrupted" in err and "aborted" in err, err
+    assert took < 5.0, took

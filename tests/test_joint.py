@@ -45,9 +45,10 @@ def test_joint_multi_frequency_fit_recovers_shared_and_per_loop_parameters():
     drives = [jh.sinusoidal_field(f, 8e3, act.Hb, samples_per_period=60) for f in FREQS]
     rng = np.random.default_rng(7)
     data = []
+    outputs = ("displacement", "strain")  # each loop observes its own output
     for i in range(len(FREQS)):
-        y = np.asarray(drives[i].observed(jh.simulate(
-            jh.Parameters.from_array(truth.to_array()[i]), act, drives[i]).y))
+        sim = jh.simulate(jh.Parameters.from_array(truth.to_array()[i]), act, drives[i])
+        y = np.asarray(drives[i].observed(sim.y if i == 0 else sim.strain))
         # 1e-6 relative white noise: the standard errors then measure real noise, not the
         # ~5e-11 round-off between the joint and the single-loop evaluation paths
         data.append(y + 1e-6 * np.max(np.abs(y)) * rng.standard_normal(y.shape))
@@ -56,10 +57,12 @@ def test_joint_multi_frequency_fit_recovers_shared_and_per_loop_parameters():
     # on purpose — every λs[l] → s·λs[l] with E → E/s — and the report must find it.
     space = jh.JointSpace(_bounds(truth), len(FREQS), per_loop=PER_LOOP,
                           fixed={"Ms": np.asarray(truth.Ms), "Mz": float(truth.Mz[0])})
-    problem = jh.JointProblem(data, drives, act, space)
+    problem = jh.JointProblem(data, drives, act, space, output=outputs)
     assert problem.space.n_free == 3 + 5 * len(FREQS)
+    assert [g.unit for g in problem.groups] == ["m", "1"] and problem.output == "mixed"
     at_truth = float(problem.cost_u(problem.space.u_from_params(truth)))
-    assert 0.5e-12 < at_truth < 2e-12  # = the noise: (1e-6)² per sample
+    # = the noise: (1e-6)² per sample, each loop normalised by its own max|data| and size
+    assert 0.5e-12 * len(FREQS) < at_truth < 2e-12 * len(FREQS)
     # start 10 % off in every free parameter
     start = jh.Parameters.from_array(np.asarray(truth.to_array()) * 1.1)
     res = jh.solve(problem, start, solver="lm", max_steps=100)

@@ -15,14 +15,16 @@ multiplied by s^{v_r}. For a parameter at exactly 0 the box width is used as its
 - Identifiable combinations: for every non-pivot parameter f touched by a null direction,
   the power product θ_f · Π θ_pivot^(−B[row, f]) is invariant along all null directions
   (B the echelon basis); its value, standard error and interval are reported.
-- Gauss–Newton covariance of x: σ²·(JᵀJ)⁺ on the identifiable subspace with
-  σ² = Σe²/(N − rank) from the residuals; standard errors and 95 % intervals (normal
-  quantile 1.96) for parameters with no component along a null direction; the others are
-  reported as "not identifiable" rather than with a huge or NaN interval. An identifiable
-  parameter whose relative standard error exceeds ``max_rel_se`` (default 0.5) is
-  "poorly determined" (practical non-identifiability: it depends on the noise level).
-- Residual weights: those of the problem's own least-squares (one per loop of a
-  `JointProblem`, relative to the largest; all 1 for a single loop).
+- Residual groups: each of the problem's groups is whitened by its noise level σ_g —
+  the one it declares, or, where it declares none, σ̂_g² = RSS_g/(N_g − n·N_g/N) from
+  the fit (its share of the degrees of freedom) — and priors by their sd. The report
+  lists σ per group.
+- Gauss–Newton covariance of x: (JwᵀJw)⁺ of the whitened Jacobian on the identifiable
+  subspace; standard errors and 95 % intervals (normal quantile 1.96) for parameters
+  with no component along a null direction; the others are reported as "not
+  identifiable" rather than with a huge or NaN interval. An identifiable parameter whose
+  relative standard error exceeds ``max_rel_se`` (default 0.5) is "poorly determined"
+  (practical non-identifiability: it depends on the noise level).
 """
 
 from __future__ import annotations
@@ -119,8 +121,9 @@ class IdentifiabilityReport:
     ``singular_values`` are relative (σ/σ₁, descending); ``std_errors``/``intervals`` are
     ``None`` for parameters that are not identifiable; ``combinations`` lists the
     identifiable power-product combinations of the non-identifiable parameters with their
-    value, standard error and 95 % interval; ``sigma`` is the residual standard deviation
-    (output unit) that scales all errors; ``cov_log`` the covariance of d log|θ|."""
+    value, standard error and 95 % interval; ``group_sigma`` the noise level of each
+    residual group (declared or estimated; ``sigma`` is the first group's), in its unit;
+    ``cov_log`` the covariance of d log|θ|; ``jacobian``/``residuals`` are whitened."""
 
     names: tuple[str, ...]
     values: np.ndarray
@@ -132,6 +135,7 @@ class IdentifiabilityReport:
     combinations: list[dict]
     sigma: float
     dof: int
+    group_sigma: dict
     std_errors: dict
     intervals: dict
     correlation: np.ndarray
@@ -223,6 +227,8 @@ class IdentifiabilityReport:
                               else [float(c["interval"][0]), float(c["interval"][1])]}
                              for c in self.combinations],
             "sigma": self.sigma, "dof": self.dof,
+            "group_sigma": {k: {"sigma": v[0], "estimated": v[1]}
+                            for k, v in self.group_sigma.items()},
             "parameters": {n: {"value": float(v), "unit": u, "std_error": f(self.std_errors[n]),
                                "interval": None if self.intervals[n] is None
                                else [float(x) for x in self.intervals[n]]}
@@ -232,8 +238,10 @@ class IdentifiabilityReport:
         }  # fmt: skip
 
     def __str__(self) -> str:
+        sig = ", ".join(f"{k} {v[0]:.3g}{' (est.)' if v[1] else ''}"
+                        for k, v in self.group_sigma.items())
         lines = [f"Identifiability of {len(self.names)} free parameters: rank {self.rank}, "
-                 f"condition number {self.condition_number:.3g}, residual σ {self.sigma:.3g}"]
+                 f"condition number {self.condition_number:.3g}; noise σ: {sig}"]
         lines.append("  singular values / σ1: "
                      + ", ".join(f"{s:.2e}" for s in self.singular_values))
         for d in self.null_directions:
@@ -260,7 +268,8 @@ class IdentifiabilityReport:
 
 
 def _analyse(names, values, scale, J, e, null_tol) -> dict:
-    """The NumPy part of the analysis (so that sub-problems can be re-analysed)."""
+    """The NumPy part of the analysis on the whitened Jacobian ``J`` and residuals ``e``
+    (so that sub-problems can be re-analysed): covariance (JᵀJ)⁺."""
     names = list(names)
     n = len(names)
     U, s, Vt = np.linalg.svd(J, full_matrices=False)
@@ -290,9 +299,8 @@ def _analyse(names, values, scale, J, e, null_tol) -> dict:
             p = _clean(p)
             combos.append({names[i]: float(p[i]) for i in np.flatnonzero(p)})
     dof = max(J.shape[0] - rank, 1)
-    sigma = float(np.sqrt(np.sum(e**2) / dof))
-    inv = (Vt[~null].T / s[~null] ** 2) @ Vt[~null]  # (JᵀJ)⁺ on the identifiable subspace
-    cov = sigma**2 * inv
+    sigma = float(np.sqrt(np.sum(e**2) / dof))  # ≈ 1 for well-whitened residuals
+    cov = (Vt[~null].T / s[~null] ** 2) @ Vt[~null]  # (JᵀJ)⁺ on the identifiable subspace
     in_null = np.max(np.abs(Vt[null]), axis=0) > 1e-6 if np.any(null) else np.zeros(n, bool)
     se, ci = {}, {}
     for i, name in enumerate(names):
@@ -313,25 +321,49 @@ def _analyse(names, values, scale, J, e, null_tol) -> dict:
                 null_space=Vt[null])
 
 
-def weighted_log_jacobian(problem, x0, scale):
-    """(J, e) at the free values ``x0``: J = ∂ prediction/∂dx at dx = 0 for
-    x = x0 + dx·scale (relative coordinates when scale = x0), e = prediction − data,
-    both divided by the problem's residual weights — 1 for a single-loop problem; a
-    joint problem scales each loop by its max|data| relative to the largest, so σ is in
-    the largest loop's units. One forward pass (the prediction rides along as jacfwd's
-    aux). Traceable: used jitted here and inside the vmapped replicate fits."""
+def whitened_log_jacobian(problem, x0, scale):
+    """(Jw, ew, σ) at the free values ``x0``: the Jacobian of every residual with respect
+    to dx at dx = 0 for x = x0 + dx·scale (relative coordinates when scale = x0), and
+    the residuals, each group divided by its noise level σ_g (declared, or estimated as
+    RSS_g/(N_g − n·N_g/N)), priors by their sd; σ: the σ_g used, shape (groups,). One
+    forward pass (the residuals ride along as jacfwd's aux). Traceable: used jitted here
+    and inside the vmapped replicate fits."""
+    space = problem.space
+    groups = problem.groups
+    n = x0.shape[0]
 
-    def output(dx):
-        y = problem.predict_free(x0 + dx * scale)
-        return y, y
+    def raw(dx):
+        r = problem.group_residuals(space.params_from_free(x0 + dx * scale))
+        flat = jnp.concatenate([jnp.ravel(g) for g in r])
+        return flat, flat
 
-    w = jnp.broadcast_to(jnp.asarray(problem.sample_scale), problem.data.shape)
-    w = w / jnp.max(w)
-    J, pred = jax.jacfwd(output, has_aux=True)(jnp.zeros_like(x0))
-    return J / w[:, None], (pred - problem.data) / w
+    J, e = jax.jacfwd(raw, has_aux=True)(jnp.zeros_like(x0))
+    sizes = np.array([g.size for g in groups])
+    N = int(sizes.sum())
+    bounds = np.concatenate([[0], np.cumsum(sizes)])
+    sig = []
+    for k, g in enumerate(groups):
+        if g.sigma is not None:
+            sig.append(jnp.asarray(g.sigma, dtype=e.dtype))
+        else:
+            dof = max(g.size - n * g.size / N, 1.0)
+            sig.append(jnp.sqrt(jnp.sum(e[bounds[k]:bounds[k + 1]] ** 2) / dof))
+    sigma = jnp.stack(sig)
+    per_row = jnp.repeat(sigma, sizes, total_repeat_length=N)
+    per_row = jnp.where(per_row > 0, per_row, 1.0)
+    Jw, ew = J / per_row[:, None], e / per_row
+    if problem.priors:
+        idx = np.array([space.names.index(p.name) for p in problem.priors])
+        sd = np.array([p.sd for p in problem.priors])
+        mean = np.array([p.mean for p in problem.priors])
+        Jp = jnp.zeros((len(idx), n), e.dtype).at[np.arange(len(idx)), idx].set(
+            scale[idx] / sd)
+        Jw = jnp.concatenate([Jw, Jp])
+        ew = jnp.concatenate([ew, (x0[idx] - mean) / sd])
+    return Jw, ew, sigma
 
 
-_log_jacobian = eqx.filter_jit(weighted_log_jacobian)
+_log_jacobian = eqx.filter_jit(whitened_log_jacobian)
 
 
 def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float = 0.5
@@ -340,8 +372,8 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     docstring).
 
     **Arguments:**
-    - ``problem``: a `Problem` (or any problem with ``space.names``, ``space.free_values``,
-      ``predict_free`` and ``data``).
+    - ``problem``: any problem of the identification protocol
+      (`jaxhyst.identify.AbstractProblem`).
     - ``params``: the parameter point, usually the fitted one.
     - ``null_tol``: σ/σ₁ below which a direction counts as structurally null.
     - ``max_rel_se``: relative standard error above which an identifiable parameter is
@@ -353,18 +385,21 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     width = np.asarray(space.upper - space.lower)
     # signed θ0, so that x = dθ/θ0 = d log|θ| also for negative θ (α̃)
     scale = np.where(values != 0, values, np.where(width > 0, width, 1.0))
-    J, e = (np.asarray(a) for a in _log_jacobian(problem, jnp.asarray(values),
-                                                  jnp.asarray(scale)))
+    J, e, sigma = (np.asarray(a) for a in _log_jacobian(problem, jnp.asarray(values),
+                                                         jnp.asarray(scale)))
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(e))):
         raise ValueError("The model output or its Jacobian is not finite at these parameters; "
                          "the identifiability analysis needs a point where the model runs.")
     a = _analyse(names, values, scale, J, e, null_tol)
+    group_sigma = {g.name: (float(s), g.sigma is None)
+                   for g, s in zip(problem.groups, sigma, strict=True)}
     combos = []
     units = tuple(_unit(n) for n in names)
     rep = IdentifiabilityReport(
         names=names, values=values, units=units, singular_values=a["singular_values"],
         condition_number=a["condition_number"], null_directions=a["null_directions"],
-        suggest_fix=a["suggest_fix"], combinations=combos, sigma=a["sigma"], dof=a["dof"],
+        suggest_fix=a["suggest_fix"], combinations=combos,
+        sigma=float(sigma[0]), dof=a["dof"], group_sigma=group_sigma,
         std_errors=a["std_errors"], intervals=a["intervals"], correlation=a["correlation"],
         cov_log=a["cov_log"], null_space=a["null_space"], jacobian=J, residuals=e,
         scale=scale, max_rel_se=max_rel_se,

@@ -2,9 +2,10 @@
 
 - `profile_likelihood`: for one parameter, re-fit all the others with that parameter held
   at each value of a grid — one vmapped batch of local solves — and turn the costs into
-  the likelihood-ratio statistic Δχ²(v) = (E(v) − E_min)/σ̂² with σ̂² = E_min/(N − n)
-  (E the problem's weighted sum of squares)
-  (Gaussian noise of unknown variance, estimated from the best fit). The 95 % profile
+  the likelihood-ratio statistic Δχ²(v) = cost(v) − cost_min when every residual group
+  declares its noise level (the cost is then a χ²), else (cost(v) − cost_min)/σ̂² with
+  σ̂² = cost_min/(N − n) (Gaussian noise of unknown variance, estimated from the best
+  fit). The 95 % profile
   interval is where Δχ² ≤ 3.84 (χ²₁ quantile); a side that never crosses inside the box
   is reported as unbounded (the data do not bound the parameter there). Unlike the
   Gauss–Newton interval it follows the model's nonlinearity.
@@ -24,18 +25,22 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..identify.local import _result_name, _run, _start_z, make_solver, predict_jit
+from .._interrupt import interruptible
+from ..identify.local import CODES, run_local, start_z
+from ..identify.solvers import make_solver
+from ..identify.space import u_from_z
 from ..sharding import batch_sharding, place
-from .identifiability import Z95, weighted_log_jacobian
+from .identifiability import Z95, whitened_log_jacobian
 
 CHI2_95 = 3.841458820694124  # 95 % quantile of χ² with one degree of freedom
 
 
 @dataclass
 class ProfileLikelihood:
-    """Profile of one parameter: ``grid`` values (SI), the re-fitted normalised ``cost``
-    and ``delta_chi2`` at each, the re-fitted parameters ``theta`` (G × 10), the best
-    ``value``, and the 95 % ``interval`` (a ``None`` end is not bounded by the data)."""
+    """Profile of one parameter: ``grid`` values (SI), the re-fitted ``cost`` and
+    ``delta_chi2`` at each, the re-fitted parameters ``theta`` (G × every flat entry),
+    the best ``value``, and the 95 % ``interval`` (a ``None`` end is not bounded by the
+    data)."""
 
     name: str
     value: float
@@ -120,36 +125,38 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
     lowers = np.tile(np.asarray(space.lower), (G, 1))
     uppers = np.tile(np.asarray(space.upper), (G, 1))
     lowers[:, i_free] = uppers[:, i_free] = grid  # hold the parameter at each grid value
-    x, _, codes, _, costs = _fit_many(problem, np.broadcast_to(np.asarray(problem.data),
-                                                               (G, problem.data.shape[0])),
-                                      lowers, uppers, params, solver, max_steps,
-                                      batch_size or G)
-    theta = np.asarray(space.params_from_free(jnp.asarray(x)).to_array())
-    N = problem.data.shape[0]
-    # in normalised costs (the residual weights of the problem, per loop for a joint one):
-    # Δχ² = (cost(v) − cost_min) / σ̂², σ̂² = cost_min / (N − n)
-    e = np.asarray(predict_jit(problem, params)) - np.asarray(problem.data)
-    best = float(np.sum((e / np.asarray(problem.sample_scale)) ** 2) / N)
+    data = jax.tree.map(lambda a: np.broadcast_to(np.asarray(a), (G, *np.shape(a))),
+                        problem.observations)
+    x, _, codes, _, costs = _fit_many(problem, data, lowers, uppers, params, solver,
+                                      max_steps, batch_size or G)
+    theta = np.asarray(space.flat_from_free(jnp.asarray(x)))
+    best = float(_cost_at(problem, space.z_from_params(params)))
     c_min = min(best, float(np.nanmin(costs)))
-    sigma2 = c_min / max(N - space.n_free, 1)
+    if all(g.sigma is not None for g in problem.groups):
+        sigma2 = 1.0  # the cost is a chi-square
+    else:
+        sigma2 = c_min / max(problem.n_residuals - space.n_free, 1)
     d = (costs - c_min) / sigma2 if sigma2 > 0 else np.where(costs > c_min, np.inf, 0.0)
     d = np.where(np.isfinite(d), d, np.inf)
     i0 = int(np.argmin(d))
     interval = (_crossing(grid, d, i0, -1), _crossing(grid, d, i0, +1))
     return ProfileLikelihood(name=name, value=value, grid=grid, cost=costs, delta_chi2=d,
                              theta=theta, interval=interval,
-                             results=[_result_name(c) for c in np.asarray(codes)])
+                             results=[CODES[int(c)].value for c in np.asarray(codes)])
+
+
+@eqx.filter_jit
+def _cost_at(problem, z):
+    return problem.cost(z)
 
 
 def _gn_std_errors(problem, x):
-    """Gauss–Newton standard errors (SI) of the free parameters at their values x, with
-    σ² = Σe²/(N − n) (full-rank problems)."""
+    """Gauss–Newton standard errors (SI) of the free parameters at their values x, from
+    the whitened Jacobian (full-rank problems)."""
     scale = jnp.where(x != 0, x, 1.0)
-    J, e = weighted_log_jacobian(problem, x, scale)
-    N, n = J.shape
-    sigma2 = jnp.sum(e**2) / (N - n)
+    J, _, _ = whitened_log_jacobian(problem, x, scale)
     _, s, Vt = jnp.linalg.svd(J, full_matrices=False)
-    var = jnp.sum((Vt / s[:, None]) ** 2, axis=0) * sigma2
+    var = jnp.sum((Vt / s[:, None]) ** 2, axis=0)
     return jnp.sqrt(var) * jnp.abs(scale)
 
 
@@ -160,9 +167,10 @@ def _fit_batch(problem, solver, datas, lowers, uppers, z0, max_steps):
     the compiled program — the same for every profiled parameter and for replicates)."""
 
     def one(d, lo, hi):
-        p = eqx.tree_at(lambda q: (q.data, q.space.lower, q.space.upper), problem, (d, lo, hi))
-        z, code, steps, cost, _ = _run(p, solver, z0, max_steps)
-        x = p.space.free_values(p.space.params_from_z(z))
+        p = eqx.tree_at(lambda q: q.space, problem.with_data(d),
+                        problem.space.with_box(lo, hi))
+        z, code, steps, cost, _ = run_local(p, solver, z0, max_steps)
+        x = p.space.free_from_u(u_from_z(z))
         return x, _gn_std_errors(p, x), code, steps, cost
 
     return jax.vmap(one)(datas, lowers, uppers)
@@ -171,52 +179,61 @@ def _fit_batch(problem, solver, datas, lowers, uppers, z0, max_steps):
 def _fit_many(problem, datas, lowers, uppers, start, solver, max_steps, batch_size,
               label=None, shard=None):
     """`_fit_batch` over any number of members in batches of ``batch_size`` (the last one
-    padded, so that one compiled program serves every batch); NumPy outputs."""
-    z0 = _start_z(problem, start)
+    padded, so that one compiled program serves every batch); NumPy outputs. ``datas``:
+    a pytree whose leaves have a leading member axis."""
+    z0 = start_z(problem, start)
     solver_ = make_solver(solver)
-    R = len(datas)
+    R = len(lowers)
     out = [], [], [], [], []
     t0 = time.perf_counter()
-    for b in range(0, R, batch_size):
-        chunk = [a[b:b + batch_size] for a in (datas, lowers, uppers)]
-        pad = batch_size - len(chunk[0])
-        if pad:
-            chunk = [np.concatenate([a, np.repeat(a[-1:], pad, axis=0)]) for a in chunk]
-        sharding = batch_sharding(batch_size, shard)
-        res = _fit_batch(problem, solver_, *(place(jnp.asarray(a), sharding) for a in chunk),
-                         z0, max_steps)
-        for acc, r in zip(out, res, strict=True):
-            acc.append(np.asarray(r)[: batch_size - pad])
-        if label:
-            print(f"[{label}] {min(b + batch_size, R)}/{R} fitted, "
-                  f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+    with interruptible() as stop:
+        for b in range(0, R, batch_size):
+            chunk = [jax.tree.map(lambda a, b=b: np.asarray(a)[b:b + batch_size], x)
+                     for x in (datas, lowers, uppers)]
+            pad = batch_size - len(chunk[1])
+            if pad:
+                chunk = [jax.tree.map(lambda a, pad=pad: np.concatenate(
+                    [a, np.repeat(a[-1:], pad, axis=0)]), x) for x in chunk]
+            sharding = batch_sharding(batch_size, shard)
+            args = [jax.tree.map(lambda a, s=sharding: place(jnp.asarray(a), s), x) for x in chunk]
+            res = _fit_batch(problem, solver_, *args, z0, max_steps)
+            for acc, r in zip(out, res, strict=True):
+                acc.append(np.asarray(r)[: batch_size - pad])
+            if label:
+                print(f"[{label}] {min(b + batch_size, R)}/{R} fitted, "
+                      f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+            if stop():
+                raise KeyboardInterrupt
     return tuple(np.concatenate(a) for a in out)
 
 
 def fit_replicates(problem, datasets, start, solver: str = "lm", max_steps: int = 100,
                    batch_size: int = 64, progress: bool = False,
                    shard: bool | None = None) -> dict:
-    """Fit each row of ``datasets`` (R × N, same drive and space as ``problem``) from
-    ``start``, in vmapped batches of ``batch_size`` (spread over the devices when there
-    are several and ``batch_size`` divides evenly, see `jaxhyst.sharding`).
+    """Fit each replicate of ``datasets`` (the problem's observations stacked along a new
+    first axis: R × N for a single-signal problem) from ``start``, in vmapped batches of
+    ``batch_size`` (spread over the devices when there are several and ``batch_size``
+    divides evenly, see `jaxhyst.sharding`).
 
     Returns a dict of NumPy arrays: ``values`` and ``std_errors`` (R × n_free, SI, in the
     order of ``problem.space.names``; standard errors assume every free parameter is
     identifiable), ``cost`` (R,), ``steps`` (R,), ``results`` (names), ``names``."""
-    datasets = np.asarray(datasets, dtype=float)
-    if datasets.ndim != 2 or datasets.shape[1] != problem.data.shape[0]:
-        raise ValueError(f"datasets must have shape (R, {problem.data.shape[0]}); got "
-                         f"{datasets.shape}.")
-    if not np.all(np.isfinite(datasets)):
+    leaves = jax.tree.leaves(datasets)
+    ref = jax.tree.leaves(problem.observations)
+    if len(leaves) != len(ref) or any(np.shape(a)[1:] != np.shape(r)
+                                       for a, r in zip(leaves, ref, strict=True)):
+        raise ValueError(f"datasets must stack R replicates of the problem's observations "
+                         f"(shapes {[np.shape(r) for r in ref]}) along a new first axis.")
+    if not all(np.all(np.isfinite(a)) for a in leaves):
         raise ValueError("datasets contain NaN or inf.")
-    R = len(datasets)
+    R = len(leaves[0])
     lowers = np.broadcast_to(np.asarray(problem.space.lower), (R, problem.space.n_free))
     uppers = np.broadcast_to(np.asarray(problem.space.upper), (R, problem.space.n_free))
     values, se, codes, steps, cost = _fit_many(
         problem, datasets, lowers, uppers, start, solver, max_steps, min(batch_size, R),
         "replicates" if progress else None, shard)
     return {"names": problem.space.names, "values": values, "std_errors": se, "cost": cost,
-            "steps": steps, "results": [_result_name(c) for c in codes]}
+            "steps": steps, "results": [CODES[int(c)].value for c in codes]}
 
 
 def coverage(values, std_errors, truth, level_z: float = Z95) -> np.ndarray:

@@ -1,36 +1,72 @@
-"""Identification: problems, local solvers (Optimistix + the paper's LMA/TRA), results."""
+"""Identification: the problem protocol and problems, parameter spaces, local solvers
+(Optimistix, the paper's LMA/TRA, or any Optimistix solver object), the hybrid GAs and
+immutable results. The identifiability report is attached one level up (`jaxhyst.solve`,
+`jaxhyst.multistart`, `jaxhyst.run_hybrid`)."""
 
-from .hybrid import HYBRIDS, GASettings, HybridGA, run_hybrid
+from .hybrid import (
+    HYBRIDS,
+    CheckpointError,
+    GASettings,
+    GAState,
+    HybridGA,
+    bcga_generation,
+    fcga_generation,
+    run_hybrid,
+)
 from .joint import JointProblem, JointSpace, loop_problem
-from .local import SOLVERS, make_solver, multistart, solve
-from .paper_solvers import (
+from .local import jacobian_linearized, multistart, run_local, solve
+from .problem import (
+    OUTPUTS,
+    AbstractProblem,
+    GaussianPrior,
+    Problem,
+    ResidualGroup,
+    ResidualProblem,
+    synthetic_problem,
+)
+from .result import IdentificationResult, Outcome
+from .solvers import (
+    SOLVERS,
     MultiplicativeDamping,
     PaperLMA,
     PaperTRA,
+    PaperTrustRegion,
     TwoDimensionalSubspaceDescent,
+    make_solver,
 )
-from .problem import OUTPUTS, ParameterSpace, Problem, synthetic_problem, u_from_z, z_from_u
-from .result import IdentificationResult
+from .space import ParameterSpace, u_from_z, z_from_u
 
 __all__ = [
+    "AbstractProblem",
+    "CheckpointError",
     "GASettings",
+    "GAState",
+    "GaussianPrior",
     "HYBRIDS",
     "HybridGA",
-    "OUTPUTS",
-    "SOLVERS",
     "IdentificationResult",
     "JointProblem",
     "JointSpace",
-    "loop_problem",
     "MultiplicativeDamping",
+    "OUTPUTS",
+    "Outcome",
     "PaperLMA",
     "PaperTRA",
+    "PaperTrustRegion",
     "ParameterSpace",
     "Problem",
+    "ResidualGroup",
+    "ResidualProblem",
+    "SOLVERS",
     "TwoDimensionalSubspaceDescent",
+    "bcga_generation",
+    "fcga_generation",
+    "jacobian_linearized",
+    "loop_problem",
     "make_solver",
-    "run_hybrid",
     "multistart",
+    "run_hybrid",
+    "run_local",
     "solve",
     "synthetic_problem",
     "u_from_z",

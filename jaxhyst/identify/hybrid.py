@@ -1,7 +1,9 @@
-"""The paper's hybrid genetic algorithms (§3.4) and the one driver that runs them.
+"""The paper's hybrid genetic algorithms (§3.4): a GA state, a pure jitted generation
+step, and one thin driver.
 
 A hybrid is the hybrid-coded GA (BCGA for T1 generations, then FCGA) composed with a
-local solver, the way Optimistix composes a descent with a search:
+local solver (an Optimistix solver object, or a name), the way Optimistix composes a
+descent with a search:
 
 | method  | local solver | placement                                              |
 |---------|--------------|--------------------------------------------------------|
@@ -9,25 +11,35 @@ local solver, the way Optimistix composes a descent with a search:
 | GALM1   | ``lma``      | ``inside``                                             |
 | GATR2   | ``tra``      | ``after``: T3 iterations from the FCGA's best          |
 | GALM2   | ``lma``      | ``after``                                              |
+| GA      | none         | —                                                      |
 
-Any solver of `jaxhyst.identify.SOLVERS` can be plugged in (``HybridGA("lm", "inside")``),
-and ``HybridGA(None, "after")`` is the plain GA.
+``HybridGA(optx.LevenbergMarquardt(1e-10, 1e-12), "inside")`` plugs any solver in.
+
+**State and step.** `GAState` holds everything a generation changes (key, BCGA genes,
+FCGA population, best so far, counters, the local search's carried damping/radius).
+`bcga_generation` and `fcga_generation` are pure functions state → (state, record),
+each compiled once and dispatched once per generation: population evaluation (one
+vmapped batch, sharded over devices with no communication when there are several),
+the local search, selection and reproduction all run inside. The driver `run_hybrid`
+only reports progress, records the history, checkpoints (the serialized state) and
+handles interruption.
 
 Choices (documented in docs/identification.md):
 - BCGA → FCGA: the q2 fittest of the last BCGA generation are the FCGA's first parents.
-- Inside the FCGA, the local search runs ``local_steps`` Optimistix steps (default 5) from
-  the best individual after each evaluation; its result replaces that individual, so it
-  passes on as an elite. By default (``carry_over=True``) the LMA damping / TRA radius it
-  ended with is where the next generation's local search starts: with a restart at
-  h1 = 0.01 the LMA spends its few steps re-growing h and GALM1 stalls (measured: cost
-  ~2e-9 after 300 generations, against < 1e-20 with carry-over). The carried value is
-  part of the checkpoint, so resume stays exact.
-- Fitness F = 1/√(c1 + E) (eq 35) with E in SI units; non-finite simulations get F = 0.
-
-The driver is a thin Python loop around jitted pieces (population evaluation in one vmapped
-batch, reproduction, local solve): it reports progress, records a history per generation,
-checkpoints atomically every N generations, resumes to the identical result, and on Ctrl-C
-returns the best individual so far.
+- Inside the FCGA the local search runs ``local_steps`` steps (default 5) from the best
+  individual after each evaluation; its result replaces that individual (so it passes
+  on as an elite). With ``carry_over`` the LMA damping / TRA radius it ended with is
+  where the next one starts (a restart at h1 = 0.01 made GALM1 stall at cost ~2e-9);
+  a best individual where the last local search already converged is not searched again.
+- Fitness F = 1/√(c1 + E) (eq 35); non-finite costs get F = 0 and are counted.
+- **Convergence check**: every run ends with a Levenberg–Marquardt solve (``lm``, up to
+  ``check_steps``, default 100) from its best point. Its outcome is the run's outcome: a
+  run whose best point is not at an optimum the check can reach says
+  ``max_steps_reached``. Where the check lowered the cost, the result is the lower point
+  and ``extra["convergence_check"]`` says by how much (the result's text says that the
+  GA stopped short). LM rather than the hybrid's own solver, because the paper's TRA
+  rejects every step at an optimum with non-zero residuals (its ratio test then
+  compares round-off) and would never report convergence there.
 """
 
 from __future__ import annotations
@@ -39,6 +51,7 @@ import json
 import os
 import sys
 import time
+import zipfile
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -46,12 +59,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..sharding import batch_sharding, place
+from .._interrupt import interruptible
+from ..names import HYBRID_NAMES
+from ..sharding import map_sharded, shardable
 from .ga import bcga_offspring, decode, fcga_offspring
-from .local import SOLVERS, _result_name, _run_jit, make_solver, summarize
-from .paper_solvers import with_initial_step_size
-from .problem import Problem, u_from_z, z_from_u
-from .result import IdentificationResult
+from .local import CODES, run_local, summarize
+from .problem import AbstractProblem
+from .result import IdentificationResult, Outcome
+from .solvers import initial_step_size, make_solver, solver_name, with_initial_step_size
+from .space import u_from_z, z_from_u
+
+CHECKPOINT_VERSION = 2
+
+
+class CheckpointError(ValueError):
+    """A checkpoint file cannot be used (one-line message naming the file and the fix)."""
 
 
 @dataclass(frozen=True)
@@ -59,9 +81,9 @@ class GASettings:
     """The paper's GA settings (§4): population sizes q1 (BCGA) and q2 (FCGA), crossover
     and mutation probabilities, bits per parameter, generations T1 (BCGA) and T2 (FCGA),
     local iterations T3 (``after`` placement), non-uniform mutation β, elites, local
-    steps per FCGA generation (``inside`` placement), whether the LMA damping / TRA radius
-    carries over from one generation's local search to the next (``carry_over``), and c1
-    of the fitness."""
+    steps per FCGA generation (``inside`` placement), whether the local search's damping
+    / radius carries over (``carry_over``), c1 of the fitness, and the steps of the final
+    convergence check (``check_steps``; 0 skips it)."""
 
     q1: int = 120
     q2: int = 30
@@ -76,31 +98,55 @@ class GASettings:
     local_steps: int = 5
     carry_over: bool = True
     c1: float = 1e-30
+    check_steps: int = 100
+    shard: bool = True
 
     def __post_init__(self):
-        if self.q1 < self.q2 or self.q2 < self.elites + 2:
-            raise ValueError("Need q1 >= q2 >= elites + 2 (population sizes).")
+        ints = ("q1", "q2", "bits", "T1", "T2", "T3", "elites", "local_steps", "check_steps")
+        for name in ints:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                raise ValueError(f"GASettings.{name} must be an integer; got {v!r}.")
+        if self.q1 < self.q2 or self.q2 < self.elites + 2 or self.elites < 0:
+            raise ValueError(f"GASettings need q1 >= q2 >= elites + 2 and elites >= 0; got "
+                             f"q1={self.q1}, q2={self.q2}, elites={self.elites}.")
         if not (0 <= self.pc <= 1 and 0 <= self.pm <= 1):
-            raise ValueError("pc and pm are probabilities in [0, 1].")
-        if self.T1 < 1 or self.T2 < 0 or self.T3 < 0 or self.bits < 2:
-            raise ValueError("Need T1 >= 1, T2 >= 0, T3 >= 0 and bits >= 2.")
+            raise ValueError(f"GASettings: pc and pm are probabilities in [0, 1]; got "
+                             f"pc={self.pc}, pm={self.pm}.")
+        if self.T1 < 1 or self.T2 < 0 or self.T3 < 0 or self.local_steps < 0 \
+                or self.check_steps < 0:
+            raise ValueError("GASettings need T1 >= 1 and T2, T3, local_steps, check_steps "
+                             ">= 0.")
+        if not 2 <= self.bits <= 30:
+            raise ValueError(f"GASettings.bits must be in 2 … 30; got {self.bits}.")
+        if not (np.isfinite(self.beta) and self.beta > 0 and np.isfinite(self.c1)
+                and self.c1 > 0):
+            raise ValueError("GASettings: beta and c1 must be finite and > 0.")
+
+    @property
+    def generations(self) -> int:
+        return self.T1 + self.T2
 
 
 class HybridGA(eqx.Module):
-    """A GA plus a local solver. ``placement``: ``inside`` (GATR1/GALM1) or ``after``
-    (GATR2/GALM2)."""
+    """A GA plus a local solver: ``local_solver`` is an Optimistix least-squares solver or
+    minimiser, a name of `jaxhyst.identify.SOLVERS`, or ``None`` (the plain GA);
+    ``placement`` is ``inside`` (GATR1/GALM1) or ``after`` (GATR2/GALM2)."""
 
-    local_solver: str | None = eqx.field(static=True)
+    local_solver: object = None
     placement: str = eqx.field(static=True, default="inside")
     name: str = eqx.field(static=True, default="")
 
-    def __check_init__(self):
-        if self.local_solver is not None and self.local_solver not in SOLVERS:
-            raise ValueError(f"Unknown local solver {self.local_solver!r}; use one of {SOLVERS}.")
-        if self.placement not in ("inside", "after"):
-            raise ValueError("placement must be 'inside' or 'after'.")
+    def __init__(self, local_solver=None, placement: str = "inside", name: str = ""):
+        if placement not in ("inside", "after"):
+            raise ValueError(f"placement must be 'inside' or 'after'; got {placement!r}.")
+        self.local_solver = None if local_solver is None else make_solver(local_solver)
+        self.placement = placement
+        self.name = name or ("GA" if local_solver is None else
+                             f"GA+{solver_name(local_solver)} ({placement})")
 
 
+#: The paper's hybrids and the plain GA, by name (`jaxhyst.names.HYBRID_NAMES`).
 HYBRIDS = {
     "GATR1": HybridGA("tra", "inside", "GATR1"),
     "GALM1": HybridGA("lma", "inside", "GALM1"),
@@ -108,245 +154,399 @@ HYBRIDS = {
     "GALM2": HybridGA("lma", "after", "GALM2"),
     "GA": HybridGA(None, "after", "GA"),
 }
+assert tuple(HYBRIDS) == HYBRID_NAMES
+
+
+class GAState(eqx.Module):
+    """Everything a generation changes; a checkpoint is this state serialized."""
+
+    key: jax.Array  # PRNG key (uint32, (2,))
+    genes: jax.Array  # BCGA population, (q1, n, bits) uint8
+    U: jax.Array  # FCGA population in box coordinates, (q2, n)
+    generation: jax.Array  # generations completed
+    best_u: jax.Array  # (n,)
+    best_cost: jax.Array
+    evaluations: jax.Array
+    failures: jax.Array
+    local_steps: jax.Array
+    step_size: jax.Array  # the local search's damping (1/h) or radius, carried over
+    last_local_u: jax.Array  # (n,) where the last local search converged
+    has_last_local: jax.Array  # bool
+
+
+def initial_state(n: int, settings: GASettings, seed: int, step_size: float) -> GAState:
+    key, k0 = jax.random.split(jax.random.PRNGKey(seed))
+    genes = jax.random.bernoulli(k0, 0.5, (settings.q1, n, settings.bits)).astype(jnp.uint8)
+    i64 = jnp.zeros((), jnp.int64)
+    return GAState(key=key, genes=genes, U=jnp.zeros((settings.q2, n)), generation=i64,
+                   best_u=jnp.full((n,), 0.5), best_cost=jnp.asarray(jnp.inf),
+                   evaluations=i64, failures=i64, local_steps=i64,
+                   step_size=jnp.asarray(float(step_size)), last_local_u=jnp.zeros((n,)),
+                   has_last_local=jnp.asarray(False))
+
+
+def _evaluate(problem, U, shard: bool = True):
+    """Costs of a population (vmapped; over all devices, no communication, when ``shard``
+    and the population divides evenly)."""
+    P = U.shape[0]
+    return map_sharded(jax.vmap(problem.cost_u), P, shard and shardable(P))(U)
+
+
+def _record(problem, settings, state, population, costs, fitness, local):
+    finite = jnp.isfinite(costs)
+    mean = jnp.sum(jnp.where(finite, fitness, 0.0)) / jnp.maximum(jnp.sum(finite), 1)
+    return {"best_cost": state.best_cost, "best_fitness": jnp.max(fitness),
+            "mean_fitness": mean, "best_u": state.best_u,
+            "evaluations": state.evaluations, "failures": state.failures, **local}
+
+
+def _no_local(cost):
+    nan = jnp.asarray(jnp.nan)
+    return {"local_ran": jnp.asarray(False), "local_skipped": jnp.asarray(False),
+            "local_code": jnp.asarray(-1, jnp.int32), "local_steps": jnp.asarray(0, jnp.int64),
+            "local_cost_before": cost, "local_cost_after": nan}
+
+
+def _update_best(state, population, costs):
+    best = jnp.argmin(costs)
+    better = costs[best] < state.best_cost
+    return (jnp.where(better, population[best], state.best_u),
+            jnp.where(better, costs[best], state.best_cost))
 
 
 @eqx.filter_jit
-def _evaluate(problem: Problem, U):
-    return jax.vmap(problem.cost_u)(U)
+def bcga_generation(problem: AbstractProblem, method: HybridGA, settings: GASettings,
+                    state: GAState):
+    """One BCGA generation (i ≤ T1): evaluate the binary population, keep the best,
+    reproduce; at i = T1 hand the q2 fittest to the FCGA. Returns (state, record)."""
+    s = settings
+    i = state.generation + 1
+    population = decode(state.genes)
+    costs = _evaluate(problem, population, settings.shard)
+    bad = ~jnp.isfinite(costs)
+    costs = jnp.where(bad, jnp.inf, costs)
+    fitness = problem.fitness_from_cost(costs, s.c1)
+    best_u, best_cost = _update_best(state, population, costs)
+    key, k = jax.random.split(state.key)
+    T = s.generations
+
+    def next_bcga(_):
+        genes = bcga_offspring(k, state.genes, fitness, s.pc, s.pm, elites=s.elites)
+        return genes, state.U
+
+    def handover(_):
+        top = jnp.argsort(costs, stable=True)[: s.q2]
+        U = population[top]
+        U = jax.lax.cond(i < T, lambda U: fcga_offspring(k, U, fitness[top], i, T, s.pc, s.pm,
+                                                         s.beta, elites=s.elites),
+                         lambda U: U, U)
+        return state.genes, U
+
+    genes, U = jax.lax.cond(i < s.T1, next_bcga, handover, None)
+    new = eqx.tree_at(
+        lambda st: (st.key, st.genes, st.U, st.generation, st.best_u, st.best_cost,
+                    st.evaluations, st.failures),
+        state, (key, genes, U, i, best_u, best_cost,
+                state.evaluations + population.shape[0], state.failures + jnp.sum(bad)))
+    return new, _record(problem, s, new, population, costs, fitness,
+                        _no_local(jnp.min(costs)))
 
 
-_bcga_step = jax.jit(bcga_offspring, static_argnames="elites")
-_fcga_step = jax.jit(fcga_offspring, static_argnames="elites")
-# The per-generation bookkeeping, compiled: run op by op, θ(u) for the history, the
-# fitness and the key split cost ~2 ms a generation (a 100-generation GA on Table 1, whose
-# population evaluations take 6–13 ms each, went 1.03 → 0.81 s).
-_fitness = eqx.filter_jit(lambda problem, costs, c1: problem.fitness_from_cost(costs, c1))
-_theta = eqx.filter_jit(lambda space, u: space.theta_from_u(u))
-_split = jax.jit(jax.random.split)
-_decode = jax.jit(decode)
+@eqx.filter_jit
+def fcga_generation(problem: AbstractProblem, method: HybridGA, settings: GASettings,
+                    state: GAState):
+    """One FCGA generation (i > T1): evaluate, run the local search from the best
+    (``inside`` placement), keep the best, reproduce. Returns (state, record)."""
+    s = settings
+    i = state.generation + 1
+    T = s.generations
+    population = state.U
+    costs = _evaluate(problem, population, settings.shard)
+    bad = ~jnp.isfinite(costs)
+    costs = jnp.where(bad, jnp.inf, costs)
+    best = jnp.argmin(costs)
+    local = _no_local(costs[best])
+    step_size, last_u, has_last = state.step_size, state.last_local_u, state.has_last_local
+    local_steps = state.local_steps
+    if method.local_solver is not None and method.placement == "inside" and s.local_steps:
+        unchanged = has_last & jnp.all(population[best] == last_u)
+
+        def search(_):
+            solver = with_initial_step_size(method.local_solver, step_size)
+            z, code, steps, cost, final = run_local(problem, solver, z_from_u(population[best]),
+                                                    s.local_steps)
+            return z, code, steps.astype(jnp.int64), cost, jnp.asarray(final, float)
+
+        def skip(_):
+            return (z_from_u(population[best]), jnp.asarray(0, jnp.int32),
+                    jnp.asarray(0, jnp.int64), costs[best], jnp.asarray(step_size, float))
+
+        z, code, steps, cost, final = jax.lax.cond(unchanged, skip, search, None)
+        improved = jnp.isfinite(cost) & (cost <= costs[best]) & ~unchanged
+        population = jnp.where(improved, population.at[best].set(u_from_z(z)), population)
+        costs = jnp.where(improved, costs.at[best].set(cost), costs)
+        if s.carry_over:
+            step_size = jnp.where(~unchanged & jnp.isfinite(final) & (final > 0), final,
+                                  step_size)
+        converged = code == 0
+        last_u = jnp.where(unchanged, last_u, population[best])
+        has_last = jnp.where(unchanged, has_last, converged)
+        local_steps = local_steps + steps
+        local = {"local_ran": ~unchanged, "local_skipped": unchanged, "local_code": code,
+                 "local_steps": steps, "local_cost_before": local["local_cost_before"],
+                 "local_cost_after": cost}
+    fitness = problem.fitness_from_cost(costs, s.c1)
+    best_u, best_cost = _update_best(state, population, costs)
+    key, k = jax.random.split(state.key)
+    U = jax.lax.cond(i < T, lambda U: fcga_offspring(k, U, fitness, i, T, s.pc, s.pm, s.beta,
+                                                     elites=s.elites),
+                     lambda U: U, population)
+    new = eqx.tree_at(
+        lambda st: (st.key, st.U, st.generation, st.best_u, st.best_cost, st.evaluations,
+                    st.failures, st.local_steps, st.step_size, st.last_local_u,
+                    st.has_last_local),
+        state, (key, U, i, best_u, best_cost, state.evaluations + population.shape[0],
+                state.failures + jnp.sum(bad), local_steps, step_size, last_u, has_last))
+    return new, _record(problem, s, new, population, costs, fitness, local)
 
 
-def _fingerprint(problem: Problem, method: HybridGA, settings: GASettings, seed: int) -> str:
+@eqx.filter_jit
+def _local(problem, solver, u, max_steps):
+    return run_local(problem, solver, z_from_u(u), max_steps)
+
+
+# -- checkpoints -----------------------------------------------------------------------------
+
+def fingerprint(problem: AbstractProblem, method: HybridGA, settings: GASettings,
+                seed: int) -> str:
+    """A hash of everything a run's result depends on."""
     h = hashlib.sha256()
-    h.update(np.asarray(problem.data).tobytes())
+    for leaf in jax.tree.leaves(problem.observations):
+        h.update(np.asarray(leaf, dtype=np.float64).tobytes())
     h.update(np.asarray(problem.space.lower).tobytes() + np.asarray(problem.space.upper).tobytes())
-    h.update(repr((method.local_solver, method.placement, dataclasses.astuple(settings), seed,
-                   problem.space.free, problem.output)).encode())
+    h.update(np.asarray(problem.space.base).tobytes())
+    h.update(repr((solver_name(method.local_solver) if method.local_solver is not None
+                   else None, method.placement, dataclasses.astuple(settings), int(seed),
+                   problem.space.names, [g.name for g in problem.groups])).encode())
     return h.hexdigest()[:16]
 
 
-def _atomic_save(path, arrays: dict, meta: dict) -> None:
+def save_checkpoint(path, state: GAState, history: list, meta: dict) -> None:
+    """Write the state, history and meta data atomically (temporary file, fsync, rename)."""
     path = os.fspath(path)
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    arrays = {f.name: np.asarray(getattr(state, f.name)) for f in dataclasses.fields(state)}
     buf = io.BytesIO()
-    np.savez(buf, meta=np.array(json.dumps(meta)), **arrays)
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "wb") as fh:
-        fh.write(buf.getvalue())
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    np.savez(buf, meta=np.array(json.dumps({**meta, "history": history,
+                                            "version": CHECKPOINT_VERSION})), **arrays)
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    tmp = os.path.join(directory, f".{os.path.basename(path)}.tmp{os.getpid()}")
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(buf.getvalue())
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
 
 
-def _load(path):
-    with np.load(path, allow_pickle=False) as z:
-        meta = json.loads(str(z["meta"]))
-        arrays = {k: z[k] for k in z.files if k != "meta"}
-    return arrays, meta
+def load_checkpoint(path, template: GAState) -> tuple[GAState, list, dict]:
+    """Read a checkpoint written by `save_checkpoint`, checking every array against
+    ``template`` (never unpickling). Raises `CheckpointError` with one line."""
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise CheckpointError(f"checkpoint {path} does not exist; run without resume to "
+                              "start a new run.")
+    if os.path.isdir(path):
+        raise CheckpointError(f"checkpoint {path} is a directory; give a file.")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            files = set(z.files)
+            meta = json.loads(str(z["meta"]))
+            arrays = {k: z[k] for k in files if k != "meta"}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile,
+            json.JSONDecodeError) as err:
+        raise CheckpointError(f"checkpoint {path} is not a readable jaxhyst checkpoint "
+                              f"({type(err).__name__}: {' '.join(str(err).split())[:120]}); "
+                              "delete it or run without resume.") from None
+    if not isinstance(meta, dict) or meta.get("version") != CHECKPOINT_VERSION:
+        raise CheckpointError(f"checkpoint {path} was written by another jaxhyst version; "
+                              "delete it or run without resume.")
+    values = {}
+    for f in dataclasses.fields(template):
+        ref = np.asarray(getattr(template, f.name))
+        a = arrays.get(f.name)
+        if a is None or a.shape != ref.shape or a.dtype != ref.dtype:
+            raise CheckpointError(f"checkpoint {path} does not match this run (entry "
+                                  f"{f.name!r}); delete it or run without resume.")
+        values[f.name] = jnp.asarray(a)
+    history = meta.pop("history", [])
+    if not isinstance(history, list):
+        raise CheckpointError(f"checkpoint {path} has a malformed history.")
+    return GAState(**values), history, meta
 
 
-def run_hybrid(problem: Problem, method: str | HybridGA = "GATR1", seed: int = 0,
+# -- the driver --------------------------------------------------------------------------
+
+def _history_entry(i, phase, rec, names, lower, upper, elapsed):
+    r = {k: np.asarray(v) for k, v in rec.items()}
+    best_u = r["best_u"].astype(float)
+    entry = {"generation": int(i), "phase": phase, "best_fitness": float(r["best_fitness"]),
+             "mean_fitness": float(r["mean_fitness"]), "best_cost": float(r["best_cost"]),
+             "best_u": best_u.tolist(),
+             "best_values": (lower + (upper - lower) * best_u).tolist(),
+             "evaluations": int(r["evaluations"]), "failures": int(r["failures"]),
+             "elapsed": elapsed, "local": None}
+    if bool(r["local_ran"]) or bool(r["local_skipped"]):
+        entry["local"] = {
+            "result": "skipped (best unchanged)" if bool(r["local_skipped"])
+            else CODES[int(r["local_code"])].value,
+            "steps": int(r["local_steps"]), "cost_before": float(r["local_cost_before"]),
+            "cost_after": float(r["local_cost_after"])}
+    return entry
+
+
+def run_hybrid(problem: AbstractProblem, method: str | HybridGA = "GATR1", seed: int = 0,
                settings: GASettings | None = None, *, progress: bool | int = False,
                checkpoint: str | os.PathLike | None = None, checkpoint_every: int = 10,
-               resume: bool = False, stop_after: int | None = None, report: bool = True,
+               resume: bool = False, stop_after: int | None = None,
                shard: bool | None = None) -> IdentificationResult:
     """Identify ``problem`` with a hybrid GA.
 
     **Arguments:**
     - ``method``: ``GATR1``, ``GALM1``, ``GATR2``, ``GALM2``, ``GA`` or a `HybridGA`.
     - ``seed``: everything random derives from ``jax.random.PRNGKey(seed)``; the same seed
-      on the same machine gives the identical result.
+      on the same machine gives the identical result (also across a resume).
     - ``settings``: `GASettings` (paper defaults).
-    - ``progress``: print a line to stderr every ``progress`` generations (True = 10).
+    - ``progress``: print a line to stderr every ``progress`` generations (True = 10), and
+      what is being compiled before the first generation.
     - ``checkpoint``: path of an ``.npz`` written atomically every ``checkpoint_every``
-      generations and on interruption; ``resume=True`` continues from it (refused if it
-      belongs to another problem, method, settings or seed).
-    - ``stop_after``: stop after this many generations, as if interrupted (for tests and
-      for splitting long runs).
-    - ``report``: attach the identifiability report at the result (one jacfwd).
-    - ``shard``: spread each population evaluation over all devices (`jaxhyst.sharding`);
-      ``None`` (default) does so whenever there are several devices and the population
-      size is divisible by their number.
+      generations and on interruption; ``resume=True`` continues from it (it must exist
+      and belong to the same problem, method, settings and seed).
+    - ``stop_after``: stop after this many generations, as if interrupted.
+    - ``shard``: overrides ``settings.shard`` (split each generation's population over
+      all devices when it divides evenly; results are the same either way).
 
-    **Returns:** an `IdentificationResult` whose ``extra`` holds ``history`` (one dict per
-    generation: best/mean fitness, best cost and parameters, cumulative evaluations and
-    failed evaluations, local-search outcome, elapsed seconds), ``evaluations``,
-    ``failures`` and ``local_steps``. ``result`` is ``successful`` or ``interrupted``.
+    The first Ctrl-C (or SIGTERM) stops at the end of the current generation and returns
+    the best so far (outcome ``interrupted``); a second one stops at once.
+
+    **Returns:** an `IdentificationResult` whose ``extra`` holds ``history`` (one dict
+    per generation), ``evaluations``, ``failures``, ``local_steps``, ``after`` (the
+    ``after`` placement's solve) and ``convergence_check``.
     """
     if isinstance(method, str):
         if method not in HYBRIDS:
             raise ValueError(f"Unknown method {method!r}; choose one of {list(HYBRIDS)}.")
         method = HYBRIDS[method]
+    if not isinstance(method, HybridGA):
+        raise TypeError(f"method must be a name or a HybridGA; got {type(method).__name__}.")
     s = settings or GASettings()
+    if shard is not None:
+        s = dataclasses.replace(s, shard=bool(shard))
+    label = method.name
     every = 10 if progress is True else int(progress or 0)
-    T = s.T1 + s.T2
     n = problem.space.n_free
-    fingerprint = _fingerprint(problem, method, s, seed)
-    local = make_solver(method.local_solver) if method.local_solver else None
-    # initial damping 1/h1 = 100 (LMA) or radius Δ1 = 1 (TRA); carried over if requested
-    initial_step_size = 100.0 if method.local_solver == "lma" else 1.0
-    local_step_size = initial_step_size
-
-    # -- state ------------------------------------------------------------------------------
-    last_local_u = None  # where the last local solve converged (see the skip below)
-    if resume and checkpoint is not None and os.path.exists(checkpoint):
-        arrays, meta = _load(checkpoint)
-        if meta["fingerprint"] != fingerprint:
-            raise ValueError(
-                f"Checkpoint {checkpoint} belongs to another run (problem, method, settings "
-                "or seed differ); delete it or run without resume."
-            )
-        generation, history = meta["generation"], meta["history"]
-        evaluations, failures, local_steps = (meta["evaluations"], meta["failures"],
-                                              meta["local_steps"])
-        key = jnp.asarray(arrays["key"], dtype=jnp.uint32)
-        genes = jnp.asarray(arrays["genes"]) if "genes" in arrays else None
-        U = jnp.asarray(arrays["U"]) if "U" in arrays else None
-        elapsed0 = meta["elapsed"]
-        local_step_size = meta.get("local_step_size", local_step_size)
-        if "last_local_u" in arrays:
-            last_local_u = np.asarray(arrays["last_local_u"])
-    else:
-        key, k0 = jax.random.split(jax.random.PRNGKey(seed))
-        genes = jax.random.bernoulli(k0, 0.5, (s.q1, n, s.bits)).astype(jnp.uint8)
-        U = None
-        generation, history = 0, []
-        evaluations = failures = local_steps = 0
-        elapsed0 = 0.0
-
-    def snapshot():
-        """The state at a generation boundary: what a checkpoint holds. (An interrupt can
-        land mid-generation; checkpointing only snapshots keeps resume exact.)"""
-        return dict(key=key, genes=genes, U=U, generation=generation, n_history=len(history),
-                    evaluations=evaluations, failures=failures, local_steps=local_steps,
-                    local_step_size=local_step_size, last_local_u=last_local_u,
-                    elapsed=elapsed0 + time.perf_counter() - t_start)
-
-    def save(snap):
+    names = problem.space.names
+    lower, upper = np.asarray(problem.space.lower), np.asarray(problem.space.upper)
+    start_step = initial_step_size(method.local_solver) if method.local_solver is not None \
+        else 1.0
+    template = initial_state(n, s, seed, start_step)
+    fp = fingerprint(problem, method, s, seed)
+    if resume:
         if checkpoint is None:
-            return
-        arrays = {"key": np.asarray(snap["key"])}
-        for name in ("genes", "U", "last_local_u"):
-            if snap[name] is not None:
-                arrays[name] = np.asarray(snap[name])
-        meta = {k: snap[k] for k in ("generation", "evaluations", "failures", "local_steps",
-                                      "local_step_size", "elapsed")}
-        meta.update(fingerprint=fingerprint, history=history[: snap["n_history"]])
-        _atomic_save(checkpoint, arrays, meta)
+            raise ValueError("resume=True needs a checkpoint path.")
+        state, history, meta = load_checkpoint(checkpoint, template)
+        if meta.get("fingerprint") != fp:
+            raise CheckpointError(f"checkpoint {checkpoint} belongs to another run (problem, "
+                                  "method, settings or seed differ); delete it or run "
+                                  "without resume.")
+        elapsed0 = float(meta.get("elapsed", 0.0))
+    else:
+        state, history, elapsed0 = template, [], 0.0
+    T = s.generations
 
-    t_start = time.perf_counter()
-    committed = snapshot()
+    def save(state, history):
+        if checkpoint is not None:
+            save_checkpoint(checkpoint, state, history,
+                            {"fingerprint": fp, "elapsed": elapsed0 + time.perf_counter() - t0})
+
+    def say(text):
+        print(f"[{label}] {text}", file=sys.stderr, flush=True)
+
+    t0 = time.perf_counter()
     interrupted = False
-    best_u, best_cost = None, np.inf
-    if history:
-        best_cost = history[-1]["best_cost"]
-        best_u = np.asarray(history[-1]["best_u"])
-    try:
-        while generation < T:
-            i = generation + 1  # the paper's 1-based generation index
-            population = _decode(genes) if i <= s.T1 else U
-            costs = np.asarray(_evaluate(problem, place(population, batch_sharding(
-                population.shape[0], shard))))
-            evaluations += population.shape[0]
-            bad = ~np.isfinite(costs)
-            failures += int(bad.sum())
-            costs = np.where(bad, np.inf, costs)
-            best = int(np.argmin(costs))
-            local_info = None
-            # The best is still the point where the last local solve *converged*: a restart
-            # from it would stop at once, so skip it. (A solve that stopped at
-            # local_steps is continued, from where it stopped, in the next generation.)
-            unchanged = last_local_u is not None and np.array_equal(
-                np.asarray(population[best]), last_local_u)
-            if unchanged:
-                local_info = {"result": "skipped (best unchanged)", "steps": 0,
-                              "cost_before": float(costs[best]), "cost_after": float(costs[best])}
-            elif local is not None and method.placement == "inside" and i > s.T1:
-                solver = with_initial_step_size(local, local_step_size)
-                z, code, steps, cost, final_step = _run_jit(
-                    problem, solver, z_from_u(population[best]), s.local_steps)
-                steps, cost = int(steps), float(cost)
-                if s.carry_over and np.isfinite(float(final_step)) and float(final_step) > 0:
-                    local_step_size = float(final_step)
-                local_steps += steps
-                local_info = {"result": _result_name(code), "steps": steps,
-                              "cost_before": float(costs[best]), "cost_after": cost}
-                if np.isfinite(cost) and cost <= costs[best]:
-                    population = population.at[best].set(u_from_z(z))
-                    costs[best] = cost
-                converged = local_info["result"] == "successful"
-                last_local_u = np.asarray(population[best]) if converged else None
-            fitness = np.asarray(_fitness(problem, jnp.asarray(costs), s.c1))
-            if costs[best] < best_cost:
-                best_cost, best_u = float(costs[best]), np.asarray(population[best])
-            finite = fitness[np.isfinite(costs)]
-            history.append({
-                "generation": i, "phase": "BCGA" if i <= s.T1 else "FCGA",
-                "best_fitness": float(fitness.max()),
-                "mean_fitness": float(finite.mean()) if finite.size else 0.0,
-                "best_cost": best_cost, "best_u": best_u.tolist(),
-                "best_params": _theta(problem.space, jnp.asarray(best_u)).tolist(),
-                "evaluations": evaluations, "failures": failures, "local": local_info,
-                "elapsed": elapsed0 + time.perf_counter() - t_start,
-            })  # fmt: skip
-            key, k = _split(key)
-            fit = jnp.asarray(fitness)
-            if i < s.T1:
-                genes = _bcga_step(k, genes, fit, s.pc, s.pm, elites=s.elites)
-            elif i < T:
-                if i == s.T1:  # hand over the q2 fittest to the FCGA
-                    top = np.argsort(costs, kind="stable")[: s.q2]
-                    population, fit = population[top], fit[top]
-                    genes = None
-                U = _fcga_step(k, population, fit, i, T, s.pc, s.pm, s.beta, elites=s.elites)
-            generation = i
-            committed = snapshot()
-            if every and (i % every == 0 or i == T):
-                print(f"[{method.name or 'hybrid'}] generation {i}/{T} {history[-1]['phase']}: "
-                      f"best cost {best_cost:.3e}, best F {history[-1]['best_fitness']:.4g}, "
-                      f"{evaluations} evaluations, {history[-1]['elapsed']:.1f} s",
-                      file=sys.stderr, flush=True)
+    with interruptible() as stop:
+        if every and int(state.generation) < T:
+            say("compiling the generation step (the first call takes a while) …")
+        while int(state.generation) < T:
+            i = int(state.generation) + 1
+            phase = "BCGA" if i <= s.T1 else "FCGA"
+            step = bcga_generation if i <= s.T1 else fcga_generation
+            state, rec = step(problem, method, s, state)
+            history.append(_history_entry(i, phase, rec, names, lower, upper,
+                                          elapsed0 + time.perf_counter() - t0))
+            h = history[-1]
+            if every and (i % every == 0 or i == T or i == 1):
+                say(f"generation {i}/{T} {phase}: best cost {h['best_cost']:.3e}, "
+                    f"{h['evaluations']} evaluations, {h['elapsed']:.1f} s")
             if checkpoint is not None and checkpoint_every and i % checkpoint_every == 0:
-                save(committed)
-            if stop_after is not None and len(history) >= stop_after and generation < T:
+                save(state, history)
+            if stop() or (stop_after is not None and len(history) >= stop_after and i < T):
                 interrupted = True
                 break
-    except KeyboardInterrupt:
-        interrupted = True
-        print(f"[{method.name or 'hybrid'}] interrupted after generation {generation}; "
-              "returning the best so far", file=sys.stderr, flush=True)
-    if interrupted:
-        save(committed)
-        generation = committed["generation"]
-        del history[committed["n_history"]:]
-
-    z_best = z_from_u(jnp.asarray(best_u))
-    steps, code = generation, 0
-    after_info = None
-    if not interrupted and local is not None and method.placement == "after" and s.T3 > 0:
-        solver = with_initial_step_size(local, initial_step_size)
-        z, code, lsteps, cost, _ = _run_jit(problem, solver, z_best, s.T3)
-        local_steps += int(lsteps)
-        after_info = {"result": _result_name(code), "steps": int(lsteps),
-                      "cost_before": best_cost, "cost_after": float(cost)}
-        if np.isfinite(float(cost)) and float(cost) <= best_cost:
-            z_best = z
-        code = 0
-    wall = elapsed0 + time.perf_counter() - t_start
-    result = summarize(problem, z_best, steps, code, method.name or repr(method), wall,
-                       extra={"history": history, "evaluations": evaluations,
-                              "failures": failures, "local_steps": local_steps,
-                              "after": after_info, "seed": seed}, report=report)
-    if interrupted:
-        result.result = "interrupted"
+        if interrupted:
+            save(state, history)
+            if every:
+                say(f"interrupted after generation {int(state.generation)}; returning the "
+                    "best so far" + (f" (checkpoint {checkpoint})" if checkpoint else ""))
+        best_u = state.best_u
+        z_best = z_from_u(best_u)
+        local_steps = int(state.local_steps)
+        after_info = check_info = None
+        outcome = Outcome.interrupted if interrupted else Outcome.successful
+        if not interrupted and method.local_solver is not None and \
+                method.placement == "after" and s.T3 > 0:
+            if every:
+                say(f"local search ({solver_name(method.local_solver)}, up to {s.T3} steps) …")
+            solver = with_initial_step_size(method.local_solver, start_step)
+            z, code, lsteps, cost, _ = _local(problem, solver, best_u, s.T3)
+            local_steps += int(lsteps)
+            after_info = {"result": CODES[int(code)].value, "steps": int(lsteps),
+                          "cost_before": float(state.best_cost), "cost_after": float(cost)}
+            if np.isfinite(float(cost)) and float(cost) <= float(state.best_cost):
+                z_best = z
+        if not interrupted and s.check_steps and not stop():
+            checker = make_solver("lm")
+            if every:
+                say(f"convergence check ({solver_name(checker)}, up to {s.check_steps} "
+                    "steps) …")
+            before = float(_cost_at(problem, z_best))
+            z, code, csteps, cost, _ = _local(problem, checker, u_from_z(z_best), s.check_steps)
+            cost = float(cost)
+            outcome = CODES[int(code)]
+            check_info = {"result": outcome.value, "steps": int(csteps),
+                          "cost_before": before, "cost_after": cost}
+            if np.isfinite(cost) and cost < before:
+                z_best = z
+        elif not interrupted and s.check_steps:
+            outcome = Outcome.interrupted
+        elif not interrupted:  # no convergence test: the run only reached its limit
+            outcome = (Outcome(after_info["result"]) if after_info is not None
+                       else Outcome.max_steps_reached)
+    wall = elapsed0 + time.perf_counter() - t0
+    result = summarize(problem, z_best, len(history), outcome, label, wall,
+                       extra={"history": history, "evaluations": int(state.evaluations),
+                              "failures": int(state.failures), "local_steps": local_steps,
+                              "after": after_info, "convergence_check": check_info,
+                              "seed": seed})
+    if every and not interrupted:
+        say(f"done: {result.result}, cost {result.cost:.3e}, {wall:.1f} s")
     return result
+
+
+@eqx.filter_jit
+def _cost_at(problem, z):
+    return problem.cost(z)

@@ -9,10 +9,10 @@ the last field value — so that one ``jax.vmap`` over loops evaluates them all;
 mask drops the padding from the residuals. Each loop's residuals are normalised by its
 own max|data|, so small loops count as much as large ones.
 
-A `JointProblem` offers what the solvers, the hybrid driver and the identifiability
-analysis use (``residuals``, ``cost_u``, ``predict_free``, ``space``...), so `solve`,
-`multistart`, `run_hybrid` and `identifiability` work on it unchanged. Its parameters are
-a batched `Parameters` with leaves of shape (L,).
+A `JointProblem` implements the problem protocol (`AbstractProblem`; one residual
+group per loop), so every solver, the GA and the analyses work on it unchanged. Its
+parameters are a `Parameters` with leaves of shape (L,); each loop may observe its own
+output.
 
 `loop_problem` builds the common single-loop magnetization-only problem: an observed
 B(H) or M(H) loop as field samples (no time axis, no structure: the JA model is rate
@@ -33,9 +33,13 @@ from ..actuator import Actuator
 from ..drive import Drive, drive_from_record
 from ..model.jiles_atherton import JAVariant
 from ..model.simulate import DEFAULT_SUBSTEPS, PAPER_VARIANT, simulate_unchecked
-from ..params import NAMES, Bounds, Parameters
+from ..params import Bounds
 from ..sharding import batch_sharding, map_sharded
-from .problem import OUTPUTS, ParameterSpace, Problem, u_from_z, z_from_u
+from .problem import OUTPUTS, AbstractProblem, GaussianPrior, Problem, ResidualGroup
+from .space import JointSpace, ParameterSpace
+
+__all__ = ["JointProblem", "JointSpace", "NO_ACTUATOR", "STRUCTURAL", "fix_structural",
+           "loop_problem"]
 
 #: Parameters that only the structure and magnetostriction see: irrelevant (and so fixed)
 #: when the observed output is M or B.
@@ -52,118 +56,6 @@ def fix_structural(bounds: Bounds, fixed: dict | None = None) -> dict:
     for n in STRUCTURAL:
         out.setdefault(n, 0.5 * (lo[n] + hi[n]))
     return out
-
-
-class JointSpace(eqx.Module):
-    """Free parameters of L loops: shared, per loop, or fixed.
-
-    **Arguments:**
-    - ``bounds``: `Bounds` of the ten parameters (per-loop copies share them).
-    - ``n_loops``: L.
-    - ``per_loop``: names free separately in every loop.
-    - ``fixed``: ``{name: value}`` (same value in every loop) or ``{name: [v_0 … v_L-1]}``.
-
-    Free entries are named ``Ms`` (shared) or ``a[2]`` (loop 2), in that order: the shared
-    ones in `NAMES` order, then each per-loop name for loop 0 … L-1.
-    """
-
-    lower: jax.Array
-    upper: jax.Array
-    base: jax.Array  # (L, 10) values of the fixed entries
-    index: tuple = eqx.field(static=True)  # (L, 10) position in the free vector, or -1
-    names: tuple = eqx.field(static=True)
-
-    def __init__(self, bounds: Bounds, n_loops: int, per_loop: Sequence[str] = (),
-                 fixed: dict | None = None):
-        fixed = dict(fixed or {})
-        per_loop = tuple(per_loop)
-        bad = [n for n in (*per_loop, *fixed) if n not in NAMES]
-        if bad:
-            raise ValueError(f"Unknown parameter(s) {bad}; names are {list(NAMES)}.")
-        both = sorted(set(per_loop) & set(fixed))
-        if both:
-            raise ValueError(f"{both} cannot be both per-loop and fixed.")
-        if int(n_loops) < 1:
-            raise ValueError("A joint problem needs at least one loop.")
-        L = int(n_loops)
-        lo = np.asarray(bounds.lower.to_array())
-        hi = np.asarray(bounds.upper.to_array())
-        base = np.tile(0.5 * (lo + hi), (L, 1))
-        for n, v in fixed.items():
-            v = np.broadcast_to(np.asarray(v, dtype=float), (L,))
-            if not np.all(np.isfinite(v)):
-                raise ValueError(f"Fixed value of {n} is not finite.")
-            base[:, NAMES.index(n)] = v
-        index = -np.ones((L, len(NAMES)), dtype=int)
-        names, lower, upper = [], [], []
-        for j, n in enumerate(NAMES):
-            if n not in fixed and n not in per_loop:
-                index[:, j] = len(names)
-                names.append(n)
-                lower.append(lo[j])
-                upper.append(hi[j])
-        for n in per_loop:
-            j = NAMES.index(n)
-            for l_ in range(L):
-                index[l_, j] = len(names)
-                names.append(f"{n}[{l_}]")
-                lower.append(lo[j])
-                upper.append(hi[j])
-        if not names:
-            raise ValueError("Every parameter is fixed: there is nothing to identify.")
-        self.lower = jnp.asarray(lower)
-        self.upper = jnp.asarray(upper)
-        self.base = jnp.asarray(base)
-        self.index = tuple(map(tuple, index.tolist()))
-        self.names = tuple(names)
-
-    @property
-    def n_loops(self) -> int:
-        return len(self.index)
-
-    @property
-    def n_free(self) -> int:
-        return len(self.names)
-
-    @property
-    def free(self) -> tuple:
-        """Hashable description of the free set (for checkpoints' fingerprints)."""
-        return self.names
-
-    def theta_from_free(self, x) -> jax.Array:
-        """All ten SI values per loop, shape (..., L, 10), from free values x (..., n)."""
-        x = jnp.asarray(x)
-        idx = np.asarray(self.index)
-        gathered = jnp.take(x, jnp.asarray(np.maximum(idx, 0)), axis=-1)  # (..., L, 10)
-        return jnp.where(jnp.asarray(idx >= 0), gathered, self.base)
-
-    def params_from_free(self, x) -> Parameters:
-        return Parameters.from_array(self.theta_from_free(x))
-
-    def theta_from_u(self, u) -> jax.Array:
-        return self.theta_from_free(self.lower + (self.upper - self.lower) * u)
-
-    def params_from_u(self, u) -> Parameters:
-        return Parameters.from_array(self.theta_from_u(u))
-
-    def params_from_z(self, z) -> Parameters:
-        return self.params_from_u(u_from_z(z))
-
-    def free_values(self, params: Parameters) -> jax.Array:
-        """Free values from `Parameters` with leaves (L,) (or scalars: the same in every
-        loop). A shared parameter is read from the last loop (its values should agree).
-        Traceable (static gather), so it works inside jit/vmap."""
-        theta = jnp.broadcast_to(params.to_array(), (self.n_loops, len(NAMES)))
-        idx = np.asarray(self.index)
-        sel = idx >= 0
-        return jnp.zeros(self.n_free, theta.dtype).at[idx[sel]].set(theta[sel])
-
-    def u_from_params(self, params: Parameters) -> jax.Array:
-        width = jnp.where(self.upper > self.lower, self.upper - self.lower, 1.0)
-        return jnp.clip((self.free_values(params) - self.lower) / width, 0.0, 1.0)
-
-    def z_from_params(self, params: Parameters) -> jax.Array:
-        return z_from_u(self.u_from_params(params))
 
 
 def _pad_drives(drives: Sequence[Drive]):
@@ -192,53 +84,68 @@ def _pad_drives(drives: Sequence[Drive]):
     return drive, mask
 
 
-class JointProblem(eqx.Module):
+class JointProblem(AbstractProblem):
     """Several loops of one material fitted as one problem (see the module docstring).
 
     **Arguments:**
     - ``data``: one observed signal per loop (each aligned with its drive's observed
-      samples), in the unit of ``output``.
+      samples), in the unit of that loop's output.
     - ``drives``: one `Drive` per loop (`drive_from_record`, `sinusoidal_field`...).
-    - ``actuator``, ``output``, ``variant``, ``substeps``: as in `Problem` (common).
-    - ``space``: a `JointSpace` for L = len(data) loops.
+    - ``actuator``, ``variant``, ``substeps``: as in `Problem` (common).
+    - ``output``: one output name for every loop, or one per loop (displacement on one
+      drive and strain on another).
+    - ``space``: `ParameterSpace.for_loops` (`JointSpace`) for L = len(data) loops.
+    - ``sigma``: noise level per loop (a number for all, a sequence, or None: estimated);
+      ``priors``: `GaussianPrior` terms (need sigma).
     - ``shard_loops``: spread the loops over all devices (`jaxhyst.sharding.map_sharded`):
       each device simulates its share of the loops, so that one local solve can use
       several devices. ``True`` needs L to be a multiple of the device count (and does
-      nothing on one device). Measured on 2 CPU host devices: a 2-loop joint LM solve
-      1.6× faster, same result (`benchmarks/bench_sharding.py`). Opt-in (default
-      ``False``) because a GA on such a problem would split the loops *and* its
-      population over the same devices, which we have not measured.
+      nothing on one device). Opt-in: a GA on such a problem would split the loops *and*
+      its population over the same devices.
+
+    Each loop is one residual group, normalised by its own max|data| (or its sigma), so
+    small loops count as much as large ones.
     """
 
     data: jax.Array  # (N,) valid samples of all loops, concatenated
     padded: jax.Array  # (L, n_obs)
     drive: Drive  # batched: leaves (L, T)
     actuator: Actuator
-    space: JointSpace
-    sample_scale: jax.Array  # (N,) max|data| of each sample's loop
+    space: ParameterSpace
     mask: tuple = eqx.field(static=True)
-    scale: float = eqx.field(static=True)
-    output: str = eqx.field(static=True, default="displacement")
+    scales: tuple = eqx.field(static=True)
+    outputs: tuple = eqx.field(static=True)
+    sigmas: tuple = eqx.field(static=True)
     variant: JAVariant = PAPER_VARIANT
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
     shard_loops: bool = eqx.field(static=True, default=False)
+    priors: tuple = eqx.field(static=True, default=())
 
     def __init__(self, data: Sequence, drives: Sequence[Drive], actuator: Actuator,
-                 space: JointSpace, output: str = "displacement",
+                 space: ParameterSpace, output: str | Sequence[str] = "displacement",
                  variant: JAVariant = PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
-                 shard_loops: bool = False):
-        if output not in OUTPUTS:
-            raise ValueError(f"Unknown output {output!r}; choose one of {list(OUTPUTS)}.")
-        if len(data) != len(drives) or len(data) != space.n_loops:
-            raise ValueError(f"{len(data)} data sets, {len(drives)} drives and a space for "
-                             f"{space.n_loops} loops: give one drive per loop.")
+                 shard_loops: bool = False, sigma=None,
+                 priors: Sequence[GaussianPrior] = ()):
+        L = len(data)
+        outputs = (output,) * L if isinstance(output, str) else tuple(output)
+        bad = [o for o in outputs if o not in OUTPUTS]
+        if bad:
+            raise ValueError(f"Unknown output(s) {bad}; choose from {list(OUTPUTS)}.")
+        if len(outputs) != L:
+            raise ValueError(f"{len(outputs)} outputs for {L} loops: give one per loop.")
+        if len(drives) != L or space.n_loops != L:
+            raise ValueError(f"{L} data sets, {len(drives)} drives and a space for "
+                             f"{space.n_loops} loops: give one drive per loop (and a "
+                             "space from ParameterSpace.for_loops).")
+        sigmas = (sigma,) * L if sigma is None or np.ndim(sigma) == 0 else tuple(sigma)
+        if len(sigmas) != L:
+            raise ValueError(f"{len(sigmas)} noise levels for {L} loops.")
         # validate each loop exactly as a single-loop problem would
-        single = ParameterSpace(Bounds(Parameters.from_array(space.base[0]),
-                                       Parameters.from_array(space.base[0])))
+        single = ParameterSpace(space_bounds_of_loop(space))
         scales = []
         for i, (y, d) in enumerate(zip(data, drives, strict=True)):
             try:
-                scales.append(Problem(y, d, actuator, single, output=output).scale)
+                scales.append(Problem(y, d, actuator, single, output=outputs[i]).scale)
             except ValueError as err:
                 raise ValueError(f"Loop {i}: {err}") from None
         drive, mask = _pad_drives(drives)
@@ -249,30 +156,43 @@ class JointProblem(eqx.Module):
         self.mask = tuple(map(tuple, mask.tolist()))
         self.padded = jnp.asarray(padded)
         self.data = jnp.asarray(padded[mask])
-        self.sample_scale = jnp.asarray(np.broadcast_to(np.asarray(scales)[:, None],
-                                                        mask.shape)[mask])
-        self.scale = float(max(scales))
+        self.scales = tuple(float(s) for s in scales)
+        self.outputs = outputs
+        self.sigmas = tuple(None if s is None else float(s) for s in sigmas)
         self.actuator = actuator
         self.space = space
-        self.output = output
         self.variant = variant
         self.substeps = int(substeps)
+        self.priors = tuple(priors)
         try:
-            self.shard_loops = bool(shard_loops) and batch_sharding(len(data), True) is not None
+            self.shard_loops = bool(shard_loops) and batch_sharding(L, True) is not None
         except ValueError:
-            raise ValueError(f"shard_loops=True: {len(data)} loops cannot be split evenly over "
+            raise ValueError(f"shard_loops=True: {L} loops cannot be split evenly over "
                              f"{jax.device_count()} devices; use a multiple of the device "
                              "count or shard_loops=False.") from None
+        self._check_priors()
 
     @property
     def n_loops(self) -> int:
         return len(self.mask)
 
     @property
-    def unit(self) -> str:
-        return OUTPUTS[self.output][0]
+    def output(self) -> str:
+        """The common output (or ``"mixed"`` when loops observe different outputs)."""
+        return self.outputs[0] if len(set(self.outputs)) == 1 else "mixed"
 
-    def simulate(self, params: Parameters):
+    @property
+    def unit(self) -> str:
+        units = {OUTPUTS[o][0] for o in self.outputs}
+        return units.pop() if len(units) == 1 else "mixed"
+
+    @property
+    def groups(self) -> tuple[ResidualGroup, ...]:
+        return tuple(ResidualGroup(f"loop {i} ({o})", int(sum(self.mask[i])),
+                                   OUTPUTS[o][0], self.sigmas[i], scale=self.scales[i])
+                     for i, o in enumerate(self.outputs))
+
+    def simulate(self, params):
         """Per-loop `Simulation` (leaves (L, T)) for `Parameters` with leaves (L,)."""
         def loops(params, drive):
             return jax.vmap(simulate_unchecked, in_axes=(0, None, 0, None, None))(
@@ -280,36 +200,44 @@ class JointProblem(eqx.Module):
 
         return map_sharded(loops, self.n_loops, self.shard_loops)(params, self.drive)
 
-    def predict_loops(self, params: Parameters) -> jax.Array:
-        """Model output per loop, (L, n_obs) (padding included)."""
+    def predict_loops(self, params) -> jax.Array:
+        """Model output per loop, (L, n_obs) (padding included), each loop's own output."""
         sim = self.simulate(params)
-        return OUTPUTS[self.output][1](sim)[:, self.drive.run_in:]
+        kinds = sorted(set(self.outputs))
+        out = OUTPUTS[kinds[0]][1](sim)
+        for kind in kinds[1:]:  # elementwise per loop (a gather would undo loop sharding)
+            this = np.array([o == kind for o in self.outputs])[:, None]
+            out = jnp.where(this, OUTPUTS[kind][1](sim), out)
+        return out[:, self.drive.run_in:]
 
-    def predict(self, params: Parameters) -> jax.Array:
+    def predict(self, params) -> jax.Array:
         """Model output at the valid samples of all loops, concatenated (N,)."""
         return self.predict_loops(params)[np.asarray(self.mask)]
 
-    def predict_free(self, x) -> jax.Array:
-        return self.predict(self.space.params_from_free(x))
+    def group_residuals(self, params) -> tuple:
+        e = self.predict_loops(params) - self.padded
+        mask = np.asarray(self.mask)
+        return tuple(e[i][mask[i]] for i in range(self.n_loops))
 
-    def residuals_u(self, u) -> jax.Array:
-        r = (self.predict(self.space.params_from_u(u)) - self.data) / self.sample_scale
-        return r / np.sqrt(self.data.shape[0])
+    @property
+    def observations(self):
+        return self.data
 
-    def residuals(self, z, args=None) -> jax.Array:
-        del args
-        return self.residuals_u(u_from_z(z))
+    def with_data(self, data) -> JointProblem:
+        data = jnp.asarray(data, dtype=jnp.float64)
+        padded = jnp.zeros_like(self.padded).at[np.asarray(self.mask)].set(data)
+        return eqx.tree_at(lambda q: (q.data, q.padded), self, (data, padded))
 
-    def cost_u(self, u) -> jax.Array:
-        return jnp.sum(self.residuals_u(u) ** 2)
 
-    def cost(self, z) -> jax.Array:
-        return self.cost_u(u_from_z(z))
+def space_bounds_of_loop(space: ParameterSpace) -> Bounds:
+    """`Bounds` whose values are a joint space's first loop's base values (lower =
+    upper): only used to validate each loop's data as a single-loop problem."""
+    from ..params import NAMES, Parameters
 
-    def fitness_from_cost(self, cost, c1: float = 1e-30) -> jax.Array:
-        """F = 1/√(c1 + E) with E = cost·scale²·N, scale the largest loop's max|data|."""
-        E = cost * self.scale**2 * self.data.shape[0]
-        return jnp.where(jnp.isfinite(E), 1.0 / jnp.sqrt(c1 + E), 0.0)
+    L = space.n_loops
+    base = np.asarray(space.base).reshape(len(NAMES), L)[:, 0]
+    p = Parameters.from_array(jnp.asarray(base))
+    return Bounds(p, p)
 
 
 def loop_problem(H, data, bounds: Bounds, *, output: str = "flux_density", t=None,

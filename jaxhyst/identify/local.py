@@ -1,16 +1,10 @@
-"""Local least-squares solvers on a `Problem`, single or vmapped multi-start.
+"""Local solves of a problem, one start or a vmapped batch of starts.
 
-Every solver runs in the unconstrained coordinates z of the problem (bounds by
-construction, see `problem`), with Jacobians from ``jax.jacfwd`` (Optimistix's
-``options={"jac": "fwd"}``), never finite differences.
-
-| name          | what                                                          |
-|---------------|---------------------------------------------------------------|
-| ``lm``        | ``optx.LevenbergMarquardt`` (QR), damping relaxed at ρ > 0.75   |
-| ``indirect_lm`` | ``optx.IndirectLevenbergMarquardt``                         |
-| ``dogleg``    | ``optx.Dogleg`` with an SVD linear solve (JᵀJ can be singular) |
-| ``lma``       | the paper's LMA (`PaperLMA`)                                  |
-| ``tra``       | the paper's 2-D subspace trust region (`PaperTRA`)            |
+Every solver works in the unconstrained coordinates z of the problem's space (bounds by
+construction). Least-squares solvers see the residual vector with its Jacobian from
+``jax.jacfwd`` (handed over whole through a custom JVP, `jacobian_linearized`);
+minimisers (``bfgs``, any ``optx.AbstractMinimiser``) see the cost and its reverse-mode
+gradient. Never finite differences.
 """
 
 from __future__ import annotations
@@ -20,42 +14,16 @@ import time
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
 import optimistix as optx
-from optimistix._misc import cauchy_termination
 
-from .paper_solvers import PaperLMA, PaperTRA
-from .problem import Problem, u_from_z, z_from_u
-from .result import IdentificationResult
+from .problem import AbstractProblem
+from .result import IdentificationResult, Outcome
+from .solvers import BoxTermination, final_step_size, make_solver, solver_name
+from .space import u_from_z, z_from_u
 
-SOLVERS = ("lm", "indirect_lm", "dogleg", "lma", "tra")
-
-
-def make_solver(name: str, rtol: float = 1e-10, atol: float = 1e-12):
-    """An Optimistix least-squares solver by name (see module table). ``rtol``/``atol``
-    are Optimistix's Cauchy termination tolerances on the step (in z, or in box
-    coordinates u: `BoxTermination`) and on the residuals."""
-    if name == "lm":
-        # Optimistix's LM shrinks its damping λ = 1/step size only when the step did
-        # better than 0.99 of its predicted reduction (Gould et al.'s constants). Our
-        # normalised residuals give JᵀJ entries of 1e-3–0.2 against λ = 1 at the start,
-        # and the piecewise-smooth hysteresis model rarely reaches ρ > 0.99, so λ stayed
-        # large and LM crept like gradient descent. Relaxing at ρ > 0.75 (the textbook
-        # threshold, also the paper's TRA) cut the median steps from 16 random starts
-        # 140 → 42 (MnZn joint loops), 62 → 47 and 112 → 87 (Table 1, 10 and 7 free) with
-        # as many or more starts reaching the optimum (docs/identification.md).
-        lm = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-        return eqx.tree_at(lambda s: s.search, lm, optx.ClassicalTrustRegion(high_cutoff=0.75))
-    if name == "indirect_lm":
-        return optx.IndirectLevenbergMarquardt(rtol=rtol, atol=atol)
-    if name == "dogleg":
-        return optx.Dogleg(rtol=rtol, atol=atol, linear_solver=lx.SVD())
-    if name == "lma":
-        return PaperLMA(rtol=rtol, atol=atol)
-    if name == "tra":
-        return PaperTRA(rtol=rtol, atol=atol)
-    raise ValueError(f"Unknown solver {name!r}; choose one of {list(SOLVERS)}.")
+#: Result codes of `run_local` (int arrays, so that they vmap).
+CODES = (Outcome.successful, Outcome.max_steps_reached, Outcome.failed)
 
 
 def jacobian_linearized(fn):
@@ -65,11 +33,10 @@ def jacobian_linearized(fn):
 
     Optimistix linearizes the residuals once per step and then applies the linear map
     to a basis (to materialise J for its QR) and its transpose (for Jᵀr). Linearizing
-    the simulation's scan itself stores every intermediate of the time loop and replays
-    the tangent scan for each use; with this rule the stored linearization is just the
-    matrix J, so each step costs one jacfwd. Measured on the joint MnZn problem (3 loops,
-    5 parameters): an LM step 54 ms → 11.5 ms. Values and derivatives are unchanged (the
-    rule is the exact derivative); it differentiates again (jacfwd inside) if needed.
+    the simulation itself would store its intermediates and replay the tangent for
+    each use; with this rule the stored linearization is just the matrix J, so each step
+    costs one jacfwd. Values and derivatives are unchanged (the rule is the exact
+    derivative); it differentiates again (jacfwd inside) if needed.
     """
 
     @jax.custom_jvp
@@ -91,174 +58,144 @@ def jacobian_linearized(fn):
     return f
 
 
-class BoxTermination(optx.AbstractLeastSquaresSolver):
-    """A Gauss–Newton-family solver whose Cauchy test may also pass in box coordinates.
-
-    The solvers iterate in z with u = (1 + sin z)/2. When the optimum lies on a bound
-    (u = 0 or 1, e.g. c = 1 on the MnZn loops) z approaches ±π/2 only linearly — the
-    residuals are quadratic in z there, so each Gauss–Newton step halves the distance —
-    and Optimistix's test on the z step (|Δz| < atol + rtol·|z|) needs ~30 more steps
-    after u has converged to round-off. This wrapper stops an *accepted* step also when
-    the same test passes with u in place of z (and the usual test on the residuals
-    passes). Interior optima are unaffected (Table 1: the same median steps); on the
-    joint MnZn loops the median steps of 16 starts fell 42 → 32 (`lm`) and 200 → 55
-    (`lma`). Relies on the state of `optx.AbstractGaussNewton` (all our solvers).
-    """
-
-    inner: optx.AbstractLeastSquaresSolver
-
-    @property
-    def rtol(self):
-        return self.inner.rtol
-
-    @property
-    def atol(self):
-        return self.inner.atol
-
-    @property
-    def norm(self):
-        return self.inner.norm
-
-    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
-        return self.inner.init(fn, y, args, options, f_struct, aux_struct, tags)
-
-    def step(self, fn, y, args, options, state, tags):
-        y_new, new_state, aux = self.inner.step(fn, y, args, options, state, tags)
-        accepted = (new_state.num_accepted_steps > state.num_accepted_steps) & ~state.first_step
-        u_new = u_from_z(y_new)
-        residual = new_state.f_info.residual
-        in_box = cauchy_termination(self.rtol, self.atol, self.norm, u_new,
-                                    u_new - u_from_z(y), residual,
-                                    residual - state.f_info.residual)
-        terminate = new_state.terminate | (accepted & in_box)
-        return y_new, eqx.tree_at(lambda s: s.terminate, new_state, terminate), aux
-
-    def terminate(self, fn, y, args, options, state, tags):
-        return self.inner.terminate(fn, y, args, options, state, tags)
-
-    def postprocess(self, fn, y, aux, args, options, state, tags, result):
-        return self.inner.postprocess(fn, y, aux, args, options, state, tags, result)
+def _code(result) -> jax.Array:
+    """Our code (index into `CODES`) of an Optimistix RESULTS value, by public comparisons."""
+    max_steps = ((result == optx.RESULTS.max_steps_reached)
+                 | (result == optx.RESULTS.nonlinear_max_steps_reached))
+    return jnp.where(result == optx.RESULTS.successful, 0,
+                     jnp.where(max_steps, 1, 2)).astype(jnp.int32)
 
 
-def _run(problem: Problem, solver, z0, max_steps: int):
-    """One solve; returns only arrays (value, result, steps, cost) so that it vmaps
-    (Optimistix issue #63: a whole Solution does not)."""
-    sol = optx.least_squares(
-        jacobian_linearized(problem.residuals), BoxTermination(solver), z0,
-        max_steps=max_steps, throw=False, options={"jac": "fwd"},
-    )  # fmt: skip
+def run_local(problem: AbstractProblem, solver, z0, max_steps: int):
+    """One solve from z0; returns arrays only (z, code, steps, cost, final step size) so
+    that it vmaps (Optimistix issue #63: a whole Solution does not). ``solver`` is an
+    Optimistix solver object (`make_solver`)."""
+    if isinstance(solver, optx.AbstractMinimiser):
+        sol = optx.minimise(problem.cost, solver, z0, max_steps=max_steps, throw=False)
+    else:
+        wrapped = BoxTermination(solver) if isinstance(solver, optx.AbstractGaussNewton) \
+            else solver
+        sol = optx.least_squares(jacobian_linearized(problem.residuals), wrapped, z0,
+                                 max_steps=max_steps, throw=False, options={"jac": "fwd"})
     z = sol.value
-    cost = jnp.sum(problem.residuals(z) ** 2)
-    return z, sol.result._value, sol.stats["num_steps"], cost, sol.state.search_state.step_size
+    cost = problem.cost(z)
+    return z, _code(sol.result), sol.stats["num_steps"], cost, final_step_size(sol.state)
 
 
-_run_jit = eqx.filter_jit(_run)
+_run_jit = eqx.filter_jit(run_local)
 
 
 @eqx.filter_jit
 def _run_many(problem, solver, z0s, max_steps):
-    return jax.vmap(lambda z0: _run(problem, solver, z0, max_steps))(z0s)
+    return jax.vmap(lambda z0: run_local(problem, solver, z0, max_steps))(z0s)
 
 
-_RESULT_NAMES = {
-    int(item._value): name for name, item in optx.RESULTS._name_to_item.items()
-}
-
-
-def _result_name(code) -> str:
-    """Optimistix's RESULTS name (e.g. ``successful``, ``max_steps_reached``)."""
-    return _RESULT_NAMES.get(int(code), f"code {int(code)}")
-
-
-def _start_z(problem: Problem, start) -> jax.Array:
-    """z0 from a `Parameters` (projected into the box) or u ∈ [0, 1]ⁿ array."""
-    if hasattr(start, "to_array"):
-        return problem.space.z_from_params(start)
-    u = jnp.asarray(start, dtype=jnp.float64)
-    if u.shape[-1] != problem.space.n_free:
-        raise ValueError(
-            f"A start in box coordinates needs {problem.space.n_free} entries (free "
-            f"parameters {problem.space.names}); got shape {u.shape}."
-        )
+def start_z(problem: AbstractProblem, start) -> jax.Array:
+    """z0 from parameters of the problem's kind (projected into the box; a batch of them
+    gives (K, n)) or from box coordinates u ∈ [0, 1]ⁿ (shape (n,) or (K, n)). For a
+    space over a single array, an array is read as box coordinates."""
+    space = problem.space
+    if (space.treedef.num_leaves > 1 and jax.tree.structure(start) == space.treedef):
+        leaf, shape = jax.tree.leaves(start)[0], space.shapes[0]
+        if jnp.ndim(leaf) > len(shape):
+            return jax.vmap(space.z_from_params)(start)
+        return space.z_from_params(start)
+    try:
+        u = jnp.asarray(start, dtype=jnp.float64)
+    except TypeError:
+        raise TypeError(f"start must be box coordinates u or parameters of this problem's "
+                        f"kind; got {type(start).__name__}.") from None
+    if u.ndim not in (1, 2) or u.shape[-1] != space.n_free:
+        raise ValueError(f"A start in box coordinates needs {space.n_free} entries (free "
+                         f"parameters {space.names}); got shape {u.shape}.")
     if not bool(jnp.all((u >= 0) & (u <= 1))):
         raise ValueError("Box coordinates u of a start must lie in [0, 1].")
     return z_from_u(u)
 
 
-def _free_dict(problem, z) -> dict:
-    """{free name: SI value} at solver coordinate z."""
-    sp = problem.space
-    x = np.asarray(sp.lower + (sp.upper - sp.lower) * u_from_z(z))
-    return {n: float(v) for n, v in zip(sp.names, x, strict=True)}
+def _stats(groups, residuals):
+    """Per-group rms and max |e|, and the overall ones when all groups share a unit."""
+    out = {}
+    for g, e in zip(groups, residuals, strict=True):
+        e = np.asarray(e, dtype=float).ravel()
+        out[g.name] = {"rms": float(np.sqrt(np.mean(e**2))), "max_abs": float(np.max(np.abs(e))),
+                       "unit": g.unit,
+                       "sigma": None if g.sigma is None else float(g.sigma), "size": g.size}
+    units = {g.unit for g in groups}
+    if len(units) != 1:
+        return out, None, None, None
+    e = np.concatenate([np.asarray(r, dtype=float).ravel() for r in residuals])
+    return out, float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e))), float(np.sum(e**2))
 
 
 @eqx.filter_jit
-def predict_jit(problem, params) -> jax.Array:
-    """``problem.predict(params)`` compiled (cached per problem structure). Called eagerly,
-    the vmapped scan of a joint problem runs op by op: 1.3 s of a 4.3 s MnZn hybrid."""
-    return problem.predict(params)
-
-
-def summarize(problem: Problem, z, steps, code, solver_name: str, wall: float,
-              extra: dict | None = None, report: bool = True) -> IdentificationResult:
-    """Build an `IdentificationResult` at the solver coordinate ``z``, with the
-    identifiability report at that point when ``report`` (one jacfwd of the model)."""
+def _evaluate_at(problem, z):
+    """(cost, group residuals) at z, compiled (an eager vmapped scan runs op by op)."""
     params = problem.space.params_from_z(z)
-    e = np.asarray(predict_jit(problem, params) - problem.data)
-    w = np.asarray(problem.sample_scale)
-    cost = float(np.sum((e / w) ** 2) / e.shape[0])  # Σr², as in residuals
-    result = IdentificationResult(
-        params=params, free=problem.space.names, cost=cost, objective=float(np.sum(e**2)),
-        rms_error=float(np.sqrt(np.mean(e**2))), max_abs_error=float(np.max(np.abs(e))),
-        steps=int(steps), result=_result_name(code), solver=solver_name, wall_time=wall,
-        output=problem.output, extra=extra or {},
+    return problem.cost(z), problem.group_residuals(params)
+
+
+def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: float,
+              extra: dict | None = None) -> IdentificationResult:
+    """An `IdentificationResult` at the solver coordinate ``z`` (without report)."""
+    cost, residuals = _evaluate_at(problem, jnp.asarray(z))
+    cost = float(cost)
+    outcome = Outcome(outcome)
+    if not np.isfinite(cost) and outcome is not Outcome.interrupted:
+        outcome = Outcome.nonfinite
+    groups, rms, max_abs, sse = _stats(problem.groups, residuals)
+    space = problem.space
+    values = np.asarray(space.free_from_u(u_from_z(jnp.asarray(z))), dtype=float)
+    return IdentificationResult(
+        params=space.params_from_z(jnp.asarray(z)), free=space.names,
+        values=tuple(float(v) for v in values), cost=cost, outcome=outcome, steps=int(steps),
+        solver=solver, wall_time=wall, groups=groups, rms_error=rms, max_abs_error=max_abs,
+        sse=sse, output=getattr(problem, "output", ""), extra=extra or {},
     )  # fmt: skip
-    if report:
-        from ..analysis.identifiability import identifiability  # (analysis imports identify)
-
-        try:
-            result.report = identifiability(problem, params)
-        except ValueError as err:
-            result.report_error = str(err)
-    return result
 
 
-def solve(problem: Problem, start, solver: str = "lm", max_steps: int = 200,
-          rtol: float = 1e-10, atol: float = 1e-12, report: bool = True
-          ) -> IdentificationResult:
-    """Run one local solver from ``start`` (`Parameters` or box coordinates u).
+def solve(problem: AbstractProblem, start, solver="lm", max_steps: int = 200,
+          rtol: float = 1e-10, atol: float = 1e-12) -> IdentificationResult:
+    """Run one local solver from ``start`` (parameters, or box coordinates u).
 
-    ``max_steps`` bounds the iterations (the paper's T3 for ``lma``/``tra``); ``report``
-    attaches the identifiability report at the solution."""
-    z0 = _start_z(problem, start)
+    ``solver``: a name of `jaxhyst.identify.SOLVERS` (with termination tolerances
+    ``rtol``/``atol``) or any Optimistix least-squares solver or minimiser object.
+    ``max_steps`` bounds the iterations (the paper's T3 for ``lma``/``tra``); a solve
+    that reaches it reports the outcome ``max_steps_reached``, never success."""
+    z0 = start_z(problem, start)
+    solver_obj = make_solver(solver, rtol, atol)
     t0 = time.perf_counter()
-    z, code, steps, _, _ = _run_jit(problem, make_solver(solver, rtol, atol), z0, max_steps)
+    z, code, steps, _, _ = _run_jit(problem, solver_obj, z0, max_steps)
     z.block_until_ready()
     wall = time.perf_counter() - t0
-    return summarize(problem, z, steps, code, solver, wall, report=report)
+    return summarize(problem, z, steps, CODES[int(code)], solver_name(solver), wall)
 
 
-def multistart(problem: Problem, starts, solver: str = "lm", max_steps: int = 200,
-               rtol: float = 1e-10, atol: float = 1e-12, report: bool = True
-               ) -> IdentificationResult:
+def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 200,
+               rtol: float = 1e-10, atol: float = 1e-12) -> IdentificationResult:
     """Solve from K starts in one vmapped batch; returns the best, with the per-start
-    table (final cost, result, steps, parameters) in ``extra["starts"]``.
+    table (final cost, outcome, steps, free values) in ``extra["starts"]``.
 
-    ``starts``: box coordinates of shape (K, n_free), or a batched `Parameters`.
-    The batch runs until its slowest member stops, so ``max_steps`` matters."""
-    z0s = _start_z(problem, starts)
+    ``starts``: box coordinates of shape (K, n_free), or a batch of parameters. The batch
+    runs until its slowest member stops, so ``max_steps`` matters. The outcome is the
+    best start's."""
+    z0s = start_z(problem, starts)
     if z0s.ndim != 2:
         raise ValueError("multistart needs a batch of starts, shape (K, n_free).")
+    solver_obj = make_solver(solver, rtol, atol)
     t0 = time.perf_counter()
-    zs, codes, steps, costs, _ = _run_many(problem, make_solver(solver, rtol, atol), z0s, max_steps)
+    zs, codes, steps, costs, _ = _run_many(problem, solver_obj, z0s, max_steps)
     costs = np.asarray(costs)
     wall = time.perf_counter() - t0
     ranked = np.where(np.isfinite(costs), costs, np.inf)
     best = int(np.argmin(ranked))
+    space = problem.space
     table = [
-        {"cost": float(costs[i]), "result": _result_name(codes[i]), "steps": int(steps[i]),
-         "params": _free_dict(problem, zs[i])}
+        {"cost": float(costs[i]), "result": CODES[int(codes[i])].value, "steps": int(steps[i]),
+         "params": dict(zip(space.names, np.asarray(space.free_from_u(u_from_z(zs[i]))).tolist(),
+                            strict=True))}
         for i in range(len(costs))
     ]  # fmt: skip
-    return summarize(problem, zs[best], steps[best], codes[best], f"{solver} x{len(costs)}",
-                     wall, extra={"starts": table, "best_index": best}, report=report)
+    return summarize(problem, zs[best], steps[best], CODES[int(codes[best])],
+                     f"{solver_name(solver)} x{len(costs)}", wall,
+                     extra={"starts": table, "best_index": best})

@@ -1,23 +1,27 @@
-"""An identification problem: data + model + parameter space → residuals in scaled
-coordinates (Optimistix form ``fn(z, args)``), the paper's objective E(θ) and fitness F.
+"""Identification problems: the protocol every solver, the GA and the analyses use, and
+the built-in problems.
 
-Coordinates. The GA and users think in u ∈ [0, 1]ⁿ (θ = d + (b − d)·u, the box of eq 15);
-the unconstrained Optimistix solvers work in z ∈ ℝⁿ with the periodic map
+**The protocol** (`AbstractProblem`). A problem has a `ParameterSpace` (``space``) and
+named groups of residuals: ``group_residuals(params)`` returns, per `ResidualGroup`,
+model − data in that group's unit. Everything else is defined once, here:
 
-    u = (1 + sin z) / 2,
+- the problem's residual vector r (``residuals(z, args)`` in Optimistix form, or
+  ``residuals_u(u)`` in box coordinates) concatenates each group divided by its
+  normaliser — its noise level σ when given (then the cost is a χ²), else
+  scale·√(N/weight) (scale = max|data|: a mean squared error relative to the data's
+  size, O(1) in any units) — followed by the priors' (θ − μ)/sd;
+- the **cost** (the objective every solver minimises and every result reports) is Σ r²;
+- the GA's fitness is F = 1/√(c1 + cost) (`Problem` keeps the paper's eq 35 in SI units).
 
-as in MINUIT and lmfit. Every z maps inside the box, so bounds hold by construction for
-every solver, and unlike a sigmoid the map never saturates: a solver pushed against a
-bound oscillates in z instead of drifting to ±∞ (SPEC §5 measured sigmoid runs stuck at a
-bound). Parameters not listed as free are held at fixed values, exactly.
-
-Normalisation. r = (model − data) / (scale·√N) with scale = max|data|, so the cost
-Σr² is the mean squared error relative to the data's magnitude: O(1) in any units.
+A problem of your own is a subclass that implements ``space``, ``groups`` and
+``group_residuals`` (and ``with_data`` for replicate fits), or a `ResidualProblem` built
+from a residual function.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import abc
+from collections.abc import Callable, Sequence
 
 import equinox as eqx
 import jax
@@ -28,7 +32,8 @@ from ..actuator import Actuator
 from ..drive import Drive
 from ..model.jiles_atherton import JAVariant
 from ..model.simulate import DEFAULT_SUBSTEPS, PAPER_VARIANT, Simulation, simulate_unchecked
-from ..params import NAMES, Bounds, Parameters, check_parameters
+from ..params import Bounds, Parameters, check_parameters
+from .space import ParameterSpace, u_from_z
 
 MU0 = 4e-7 * np.pi  # vacuum permeability, H/m
 
@@ -42,108 +47,162 @@ OUTPUTS = {
 }
 
 
-def u_from_z(z):
-    """Box coordinate u ∈ [0, 1] from the unconstrained z (periodic sine map)."""
-    return 0.5 * (1.0 + jnp.sin(z))
+#: Largest magnitude of each output any magnetostrictive material or actuator shows (SI):
+#: data beyond it are a unit or column mistake, refused before a fit.
+PLAUSIBLE = {"displacement": 1.0, "strain": 1.0, "magnetostriction": 1.0,
+             "magnetization": 1e8, "flux_density": 100.0}
 
 
-def z_from_u(u):
-    """The z ∈ [−π/2, π/2] that maps to u (inverse of `u_from_z` on its principal branch)."""
-    return jnp.arcsin(jnp.clip(2.0 * jnp.asarray(u) - 1.0, -1.0, 1.0))
+_TRACED = object()
 
 
-class ParameterSpace(eqx.Module):
-    """Which parameters are free, their bounds, and the values of the fixed ones.
+def _concrete(x):
+    """``x`` as a float (None stays None), or `_TRACED` when it has no value yet."""
+    if x is None:
+        return None
+    try:
+        return float(x)
+    except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError,
+            jax.errors.TracerBoolConversionError):
+        return _TRACED
 
-    **Arguments:**
-    - ``bounds``: `Bounds` for all ten parameters (only the free ones' are used).
-    - ``fixed``: ``{name: value}`` of parameters held fixed (SI units); default none.
+
+class ResidualGroup(eqx.Module):
+    """Metadata of one group of residuals (static: part of a problem's structure).
+
+    - ``name``; ``size`` (number of residuals); ``unit`` of model − data.
+    - ``sigma``: known noise standard deviation (unit); ``None`` to estimate it from the
+      fit (the identifiability report does, per group).
+    - ``weight``: relative weight when ``sigma`` is not given.
+    - ``scale``: the data's size (unit), max|data| by default; the normaliser without
+      sigma is scale·√(size/weight).
     """
 
-    lower: jax.Array
-    upper: jax.Array
-    base: jax.Array  # all ten values; free entries are overwritten
-    free: tuple[int, ...] = eqx.field(static=True)
+    name: str = eqx.field(static=True)
+    size: int = eqx.field(static=True)
+    unit: str = eqx.field(static=True, default="")
+    sigma: float | jax.Array | None = None  # (data, not structure: a new data set's σ
+    weight: float = eqx.field(static=True, default=1.0)
+    scale: float | jax.Array = 1.0  # and scale do not recompile a fit)
 
-    def __init__(self, bounds: Bounds, fixed: dict[str, float] | None = None):
-        fixed = dict(fixed or {})
-        unknown = [n for n in fixed if n not in NAMES]
+    def __check_init__(self):
+        sigma, scale = _concrete(self.sigma), _concrete(self.scale)
+        if sigma is _TRACED or scale is _TRACED:
+            return  # (built inside a traced function from checked values)
+        if sigma is not None and not (np.isfinite(sigma) and sigma > 0):
+            raise ValueError(f"Residual group {self.name!r}: sigma must be a finite number "
+                             f"> 0 (the noise level, {self.unit or 'data units'}); got "
+                             f"{self.sigma!r}.")
+        if not (np.isfinite(self.weight) and self.weight > 0):
+            raise ValueError(f"Residual group {self.name!r}: weight must be > 0; got "
+                             f"{self.weight!r}.")
+        if not (np.isfinite(scale) and scale > 0):
+            raise ValueError(f"Residual group {self.name!r}: scale must be > 0; got "
+                             f"{self.scale!r}.")
+
+    @property
+    def normaliser(self) -> float | jax.Array:
+        """What a residual is divided by in the problem's residual vector."""
+        if self.sigma is not None:
+            return self.sigma
+        return self.scale * np.sqrt(self.size / self.weight)
+
+
+class GaussianPrior(eqx.Module):
+    """A Gaussian prior θ_name ~ N(mean, sd²) on a free parameter (SI units): adds the
+    residual (θ − mean)/sd to the problem."""
+
+    name: str = eqx.field(static=True)
+    mean: float = eqx.field(static=True)
+    sd: float = eqx.field(static=True)
+
+    def __check_init__(self):
+        if not (np.isfinite(self.mean) and np.isfinite(self.sd) and self.sd > 0):
+            raise ValueError(f"Prior on {self.name}: mean must be finite and sd > 0; got "
+                             f"mean={self.mean!r}, sd={self.sd!r}.")
+
+
+class AbstractProblem(eqx.Module):
+    """The protocol of an identification problem (see the module docstring).
+
+    Subclasses provide ``space`` (a `ParameterSpace`), ``priors`` (a tuple of
+    `GaussianPrior`, possibly empty), the property ``groups`` (tuple of `ResidualGroup`)
+    and ``group_residuals(params)`` (tuple of arrays, one per group, model − data in the
+    group's unit). ``with_data(data)`` returns the problem with other observations (same
+    shapes; used by replicate fits).
+    """
+
+    space: eqx.AbstractVar[ParameterSpace]
+    priors: eqx.AbstractVar[tuple]
+
+    @property
+    @abc.abstractmethod
+    def groups(self) -> tuple[ResidualGroup, ...]:
+        """The residual groups, in the order of `group_residuals`."""
+
+    @abc.abstractmethod
+    def group_residuals(self, params) -> tuple:
+        """model − data of each group (its unit), at the parameter pytree ``params``."""
+
+    def with_data(self, data) -> AbstractProblem:
+        """This problem with other observations (the pytree ``data`` has the structure of
+        `observations`)."""
+        raise NotImplementedError(f"{type(self).__name__} does not support other data.")
+
+    @property
+    def observations(self):
+        """The observed data (a pytree; `with_data` takes the same structure)."""
+        raise NotImplementedError(f"{type(self).__name__} does not expose its data.")
+
+    # -- defined once for every problem ------------------------------------------------------
+    def _check_priors(self):
+        unknown = [pr.name for pr in self.priors if pr.name not in self.space.names]
         if unknown:
-            raise ValueError(f"Cannot fix unknown parameter(s) {unknown}; names are {list(NAMES)}.")
-        self.free = tuple(i for i, n in enumerate(NAMES) if n not in fixed)
-        if not self.free:
-            raise ValueError(
-                "All ten parameters are fixed: there is nothing to identify. Free at least "
-                "one parameter (remove it from `fixed`)."
-            )
-        lo = np.asarray(bounds.lower.to_array())
-        hi = np.asarray(bounds.upper.to_array())
-        base = 0.5 * (lo + hi)
-        for n, v in fixed.items():
-            if not np.isfinite(v):
-                raise ValueError(f"Fixed value of {n} is not finite ({v!r}).")
-            base[NAMES.index(n)] = float(v)
-        self.lower = jnp.asarray(lo[list(self.free)])
-        self.upper = jnp.asarray(hi[list(self.free)])
-        self.base = jnp.asarray(base)
+            raise ValueError(f"Priors on {unknown}: not free parameters of this problem "
+                             f"(free: {list(self.space.names)}).")
+        if self.priors and any(g.sigma is None for g in self.groups):
+            missing = [g.name for g in self.groups if g.sigma is None]
+            raise ValueError(f"A problem with priors needs the noise level sigma of every "
+                             f"residual group (missing for {missing}): the cost is then a "
+                             "chi-square in which the prior's weight is defined.")
 
     @property
-    def fixed(self) -> dict[str, float]:
-        """``{name: value}`` of the parameters held fixed."""
-        base = np.asarray(self.base)
-        return {n: float(base[i]) for i, n in enumerate(NAMES) if i not in self.free}
+    def n_residuals(self) -> int:
+        return sum(g.size for g in self.groups) + len(self.priors)
 
-    def bounds(self) -> Bounds:
-        """`Bounds` of all ten parameters (a fixed one's lower = upper = its value)."""
-        lo, hi = np.array(self.base), np.array(self.base)
-        lo[list(self.free)] = np.asarray(self.lower)
-        hi[list(self.free)] = np.asarray(self.upper)
-        return Bounds(Parameters.from_array(jnp.asarray(lo)),
-                      Parameters.from_array(jnp.asarray(hi)))
+    def residuals_params(self, params) -> jax.Array:
+        """The problem's residual vector at a parameter pytree (see the module doc)."""
+        parts = [jnp.ravel(r) / g.normaliser
+                 for r, g in zip(self.group_residuals(params), self.groups, strict=True)]
+        if self.priors:
+            x = self.space.free_values(params)
+            idx = np.array([self.space.names.index(pr.name) for pr in self.priors])
+            mean = np.array([pr.mean for pr in self.priors])
+            sd = np.array([pr.sd for pr in self.priors])
+            parts.append((x[idx] - mean) / sd)
+        return jnp.concatenate(parts)
 
-    def with_fixed(self, fixed: dict[str, float]) -> ParameterSpace:
-        """This space with the parameters in ``fixed`` also held fixed (at those values)."""
-        return ParameterSpace(self.bounds(), {**self.fixed, **fixed})
+    def residuals_u(self, u) -> jax.Array:
+        """The residual vector at box coordinates u ∈ [0, 1]ⁿ (the GA's)."""
+        return self.residuals_params(self.space.params_from_u(u))
 
-    @property
-    def names(self) -> tuple[str, ...]:
-        """Names of the free parameters, in the order of z and u."""
-        return tuple(NAMES[i] for i in self.free)
+    def residuals(self, z, args=None) -> jax.Array:
+        """The residual vector at solver coordinates z: Optimistix's ``fn(y, args)``."""
+        del args
+        return self.residuals_u(u_from_z(z))
 
-    @property
-    def n_free(self) -> int:
-        return len(self.free)
+    def cost_u(self, u) -> jax.Array:
+        """The cost Σ r² at box coordinates u."""
+        return jnp.sum(self.residuals_u(u) ** 2)
 
-    def theta_from_u(self, u) -> jax.Array:
-        """All ten SI values (shape (..., 10)) from box coordinates u of the free ones."""
-        free = self.lower + (self.upper - self.lower) * u
-        full = jnp.broadcast_to(self.base, free.shape[:-1] + (len(NAMES),))
-        return full.at[..., jnp.array(self.free)].set(free)
+    def cost(self, z, args=None) -> jax.Array:
+        """The cost Σ r² at solver coordinates z (Optimistix minimiser form)."""
+        del args
+        return self.cost_u(u_from_z(z))
 
-    def params_from_free(self, x) -> Parameters:
-        """`Parameters` with the free entries set to ``x`` (SI values, shape (..., n_free))."""
-        x = jnp.asarray(x)
-        full = jnp.broadcast_to(self.base, x.shape[:-1] + (len(NAMES),))
-        return Parameters.from_array(full.at[..., jnp.array(self.free)].set(x))
-
-    def free_values(self, params: Parameters) -> jax.Array:
-        """The free entries of ``params`` (SI values), in the order of `names`."""
-        return params.to_array()[..., jnp.array(self.free)]
-
-    def params_from_u(self, u) -> Parameters:
-        return Parameters.from_array(self.theta_from_u(u))
-
-    def params_from_z(self, z) -> Parameters:
-        return self.params_from_u(u_from_z(z))
-
-    def u_from_params(self, params: Parameters) -> jax.Array:
-        """Box coordinates of the free parameters of ``params`` (clipped into [0, 1])."""
-        x = params.to_array()[..., jnp.array(self.free)]
-        width = jnp.where(self.upper > self.lower, self.upper - self.lower, 1.0)
-        return jnp.clip((x - self.lower) / width, 0.0, 1.0)
-
-    def z_from_params(self, params: Parameters) -> jax.Array:
-        return z_from_u(self.u_from_params(params))
+    def fitness_from_cost(self, cost, c1: float = 1e-30) -> jax.Array:
+        """GA fitness F = 1/√(c1 + cost); non-finite costs get F = 0."""
+        return jnp.where(jnp.isfinite(cost), 1.0 / jnp.sqrt(c1 + cost), 0.0)
 
 
 def _sweeps_a_loop(H) -> bool:
@@ -164,8 +223,8 @@ def _sweeps_a_loop(H) -> bool:
     return float(np.max(np.abs(H[r:] - H[r]))) >= 0.9 * span
 
 
-class Problem(eqx.Module):
-    """Identify parameters from one observed signal.
+class Problem(AbstractProblem):
+    """Identify `Parameters` from one observed signal of one drive.
 
     **Arguments:**
     - ``data``: observed samples, shape (T_obs,), in the unit of ``output``; aligned with
@@ -176,6 +235,8 @@ class Problem(eqx.Module):
     - ``output``: one of ``displacement`` (m), ``strain``, ``magnetostriction``,
       ``magnetization`` (A/m), ``flux_density`` (T, B = μ0(H + M)).
     - ``variant``, ``substeps``: model settings, as in `simulate`.
+    - ``sigma``: the data's noise level (unit of ``output``) if known; ``priors``: a
+      sequence of `GaussianPrior` (needs ``sigma``).
     - ``require_full_period``: refuse data whose field does not rise and fall (less than
       one period of a periodic drive), which cannot determine a hysteresis loop.
     """
@@ -184,14 +245,17 @@ class Problem(eqx.Module):
     drive: Drive
     actuator: Actuator
     space: ParameterSpace
-    scale: float = eqx.field(static=True)
+    scale: jax.Array  # max|data| (0-d; data, so a new data set does not recompile)
     output: str = eqx.field(static=True, default="displacement")
     variant: JAVariant = PAPER_VARIANT
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
+    sigma: jax.Array | None = None  # the noise level (0-d), if known
+    priors: tuple = eqx.field(static=True, default=())
 
     def __init__(self, data, drive: Drive, actuator: Actuator, space: ParameterSpace,
                  output: str = "displacement", variant: JAVariant = PAPER_VARIANT,
-                 substeps: int = DEFAULT_SUBSTEPS, require_full_period: bool = True):
+                 substeps: int = DEFAULT_SUBSTEPS, require_full_period: bool = True,
+                 sigma: float | None = None, priors: Sequence[GaussianPrior] = ()):
         if output not in OUTPUTS:
             raise ValueError(f"Unknown output {output!r}; choose one of {list(OUTPUTS)}.")
         if not isinstance(drive, Drive):
@@ -216,6 +280,13 @@ class Problem(eqx.Module):
                 "rise and fall within the observed window to determine a hysteresis loop. "
                 "Observe a whole period (or pass require_full_period=False)."
             )
+        big = np.flatnonzero(np.abs(data) > PLAUSIBLE[output])
+        if big.size:
+            i = int(big[0])
+            raise ValueError(
+                f"data[{i}] = {data[i]:g} {OUTPUTS[output][0]} is beyond any {output} "
+                f"(|value| <= {PLAUSIBLE[output]:g} {OUTPUTS[output][0]}); check the unit "
+                "and the column of that sample.")
         scale = float(np.max(np.abs(data)))
         if scale == 0.0:
             raise ValueError("data are identically zero; nothing to fit.")
@@ -223,22 +294,22 @@ class Problem(eqx.Module):
         self.drive = drive
         self.actuator = actuator
         self.space = space
-        self.scale = scale
+        self.scale = jnp.asarray(scale, dtype=jnp.float64)
         self.output = output
         self.variant = variant
         self.substeps = int(substeps)
+        self.sigma = None if sigma is None else jnp.asarray(float(sigma), dtype=jnp.float64)
+        self.priors = tuple(priors)
+        self._check_priors()
 
     # -- model ----------------------------------------------------------------------
     def simulate(self, params: Parameters) -> Simulation:
-        return simulate_unchecked(params, self.actuator, self.drive, self.variant, self.substeps)
+        return simulate_unchecked(params, self.actuator, self.drive, self.variant,
+                                  self.substeps)
 
     def predict(self, params: Parameters) -> jax.Array:
         """The model's observed output at ``params`` (unit of ``output``)."""
         return self.drive.observed(OUTPUTS[self.output][1](self.simulate(params)))
-
-    def predict_free(self, x) -> jax.Array:
-        """`predict` as a function of the free parameters' SI values ``x`` (n_free,)."""
-        return self.predict(self.space.params_from_free(x))
 
     @property
     def unit(self) -> str:
@@ -246,47 +317,112 @@ class Problem(eqx.Module):
         return OUTPUTS[self.output][0]
 
     @property
-    def sample_scale(self) -> float:
-        """Normalisation of each residual (max|data|; per loop in a `JointProblem`)."""
-        return self.scale
+    def groups(self) -> tuple[ResidualGroup, ...]:
+        return (ResidualGroup(self.output, int(self.data.shape[0]), self.unit, self.sigma,
+                              scale=self.scale),)
+
+    def group_residuals(self, params) -> tuple:
+        return (self.predict(params) - self.data,)
+
+    @property
+    def observations(self):
+        return self.data
+
+    def with_data(self, data) -> Problem:
+        return eqx.tree_at(lambda q: q.data, self, jnp.asarray(data, dtype=jnp.float64))
 
     def with_fixed(self, fixed: dict[str, float]) -> Problem:
         """The same problem with the parameters in ``fixed`` ({name: SI value}) held fixed:
-        the reparameterisation an `IdentifiabilityReport.suggest_fixed` asks for, e.g.
-        ``problem.with_fixed({n: getattr(result.params, n) for n in report.suggest_fixed()})``.
-        """
+        the reparameterisation an `IdentifiabilityReport.suggest_fixed` asks for."""
         return eqx.tree_at(lambda q: q.space, self,
                            self.space.with_fixed({n: float(v) for n, v in fixed.items()}))
-
-    # -- what the solvers see ---------------------------------------------------------
-    def residuals(self, z, args=None) -> jax.Array:
-        """Normalised residuals r(z) = (model − data)/(scale·√N), shape (N,): Optimistix's
-        ``fn(y, args)`` for least squares in the unconstrained coordinates z."""
-        del args
-        return self.residuals_u(u_from_z(z))
-
-    def residuals_u(self, u) -> jax.Array:
-        """As `residuals`, in box coordinates u ∈ [0, 1]ⁿ (the GA's)."""
-        r = self.predict(self.space.params_from_u(u)) - self.data
-        return r / (self.scale * np.sqrt(self.data.shape[0]))
-
-    def cost_u(self, u) -> jax.Array:
-        """Normalised cost Σ r² at box coordinates u (the GA's fitness input)."""
-        return jnp.sum(self.residuals_u(u) ** 2)
-
-    def cost(self, z) -> jax.Array:
-        """Normalised cost Σ r² (dimensionless; 0 at a perfect fit)."""
-        return self.cost_u(u_from_z(z))
 
     def objective(self, params: Parameters) -> jax.Array:
         """The paper's E(θ) = Σ_k (y(k) − ỹ(k, θ))² (eq 15), in the output's unit squared."""
         return jnp.sum((self.predict(params) - self.data) ** 2)
 
     def fitness_from_cost(self, cost, c1: float = 1e-30) -> jax.Array:
-        """The paper's F = 1/√(c1 + E) (eq 35) computed from the normalised cost, with E in
-        SI units (E = cost·scale²·N). Non-finite costs get F = 0."""
-        E = cost * self.scale**2 * self.data.shape[0]
+        """The paper's F = 1/√(c1 + E) (eq 35), E in SI units recovered from the cost
+        (E = cost·normaliser² without priors). Non-finite costs get F = 0."""
+        if self.priors:
+            return super().fitness_from_cost(cost, c1)
+        E = cost * self.groups[0].normaliser ** 2
         return jnp.where(jnp.isfinite(E), 1.0 / jnp.sqrt(c1 + E), 0.0)
+
+
+class ResidualProblem(AbstractProblem):
+    """A problem from your own residual function.
+
+    **Arguments:**
+    - ``fn``: ``fn(params, data) -> {group name: residuals}`` (or one array, the group
+      ``"residuals"``): model − data in each group's unit; ``params`` is the pytree the
+      ``space`` describes, ``data`` whatever you pass (a pytree of arrays).
+    - ``space``: a `ParameterSpace` (`ParameterSpace(bounds, fixed)` for `Parameters`,
+      `ParameterSpace.for_tree` for any pytree).
+    - ``data``: passed to ``fn``; replicate fits replace it.
+    - ``groups``: ``{name: {"sigma": …, "weight": …, "unit": …, "scale": …}}`` (all
+      optional; sizes come from ``fn``).
+    - ``priors``: `GaussianPrior` terms (need every group's sigma).
+    """
+
+    fn: Callable = eqx.field(static=True)
+    space: ParameterSpace
+    data: object
+    group_spec: tuple = eqx.field(static=True)
+    priors: tuple = eqx.field(static=True, default=())
+    single: bool = eqx.field(static=True, default=False)
+
+    def __init__(self, fn: Callable, space: ParameterSpace, data=None,
+                 groups: dict | None = None, priors: Sequence[GaussianPrior] = ()):
+        if not callable(fn):
+            raise TypeError("fn must be a function fn(params, data) -> residuals.")
+        if not isinstance(space, ParameterSpace):
+            raise TypeError("space must be a jaxhyst.ParameterSpace.")
+        self.fn = fn
+        self.space = space
+        self.data = data
+        probe = space.params_from_u(jnp.full(space.n_free, 0.5))
+        try:
+            out = jax.eval_shape(fn, probe, data)
+        except Exception as err:  # noqa: BLE001 - report the user's error in one line
+            raise ValueError(f"fn(params, data) failed at the centre of the box: "
+                             f"{type(err).__name__}: {err}") from None
+        single = not isinstance(out, dict)
+        shapes = {"residuals": out} if single else dict(out)
+        spec = dict(groups or {})
+        unknown = sorted(set(spec) - set(shapes))
+        if unknown:
+            raise ValueError(f"groups {unknown} are not returned by fn (it returns "
+                             f"{sorted(shapes)}).")
+        built = []
+        for name, s in shapes.items():
+            opts = dict(spec.get(name, {}))
+            bad = sorted(set(opts) - {"sigma", "weight", "unit", "scale"})
+            if bad:
+                raise ValueError(f"group {name!r}: unknown options {bad} (use sigma, "
+                                 "weight, unit, scale).")
+            built.append(ResidualGroup(name, int(np.prod(s.shape)), **opts))
+        self.group_spec = tuple(built)
+        self.priors = tuple(priors)
+        self.single = single
+        self._check_priors()
+
+    @property
+    def groups(self) -> tuple[ResidualGroup, ...]:
+        return self.group_spec
+
+    def group_residuals(self, params) -> tuple:
+        out = self.fn(params, self.data)
+        if self.single:
+            return (out,)
+        return tuple(out[g.name] for g in self.group_spec)
+
+    @property
+    def observations(self):
+        return self.data
+
+    def with_data(self, data) -> ResidualProblem:
+        return eqx.tree_at(lambda q: q.data, self, data, is_leaf=lambda x: x is None)
 
 
 def synthetic_problem(params: Parameters, drive: Drive, actuator: Actuator, bounds: Bounds,

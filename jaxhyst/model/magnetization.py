@@ -204,7 +204,8 @@ def _scan(p, H, variant, substeps):
     with that interval's direction (N, S + 1)), starting demagnetized (M = 0). Under
     ``jax.vmap`` it runs the batch-native loop (`interval_map_batched`)."""
     if substeps not in _SCANS:
-        _SCANS[substeps] = _batching_scan(substeps)
+        # jitted: every call site in a program reuses one trace (tracing costs seconds)
+        _SCANS[substeps] = jax.jit(_batching_scan(substeps))
     return _SCANS[substeps](variant, p, H)
 
 
@@ -215,6 +216,9 @@ def _batching_scan(substeps):
 
     @scan.def_vmap
     def scan_batched(axis_size, in_batched, variant, p, H):
+        if not any(jax.tree.leaves(in_batched)):  # (jvp of the rule asks this too)
+            return _time_loop(variant, p, H, substeps, batched=False), (False, False)
+
         def full(x, batched):
             return x if batched else jnp.broadcast_to(x, (axis_size, *jnp.shape(x)))
 
@@ -277,8 +281,8 @@ def _sensitivity_loop(variant, p, H, names, with_H, substeps, batched):
             h0, h1 = (z[..., -2], z[..., -1]) if with_H else (H0, H1)
             return _interval_outputs(variant, q, h0, h1, z[..., 0], S, batched)
 
-        basis = jnp.broadcast_to(jnp.eye(K, dtype=H.dtype)[:, None, :], (K, *z.shape)) \
-            if batched else jnp.eye(K, dtype=H.dtype)
+        eye = jnp.eye(K, dtype=H.dtype)
+        basis = jnp.broadcast_to(eye[:, None, :], (K, *z.shape)) if batched else eye
         out, partials = jax.vmap(lambda t: jax.jvp(outputs, (z,), (t,)),
                                  out_axes=(None, -1))(basis)
         return out[..., S - 1], (out, partials)
@@ -301,6 +305,10 @@ def _sensitivity_scan(variant, p, H, names, with_H, substeps):
 
         @loop.def_vmap
         def loop_batched(axis_size, in_batched, variant, p, H):
+            if not any(jax.tree.leaves(in_batched)):  # (jvp of the rule asks this too)
+                out = _sensitivity_loop(variant, p, H, names, with_H, substeps, False)
+                return out, (False, False)
+
             def full(x, batched):
                 return x if batched else jnp.broadcast_to(x, (axis_size, *jnp.shape(x)))
 
@@ -308,7 +316,7 @@ def _sensitivity_scan(variant, p, H, names, with_H, substeps):
             out = _sensitivity_loop(variant, p, H, names, with_H, substeps, batched=True)
             return out, (True, True)
 
-        _SENSITIVITY[key] = loop
+        _SENSITIVITY[key] = jax.jit(loop)
     return _SENSITIVITY[key](variant, p, H)
 
 

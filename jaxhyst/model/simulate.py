@@ -20,6 +20,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..actuator import Actuator
 from ..drive import Drive
@@ -161,13 +162,24 @@ def simulate(
     - ``substeps``: RK4 substeps per sample interval (static). The default 2 keeps the
       error below 1e-5 of max|y| at ≥ 200 samples per period; see docs/theory.md.
 
-    **Returns:** a `Simulation` with every signal, shape (T,). Jit-compiled; to batch
+    **Returns:** a `Simulation` with every signal, shape (T,); raises
+    ``FloatingPointError`` (naming the first bad sample) if the simulation diverged
+    (`simulate_unchecked` returns the NaN instead). Jit-compiled; to batch
     over parameter sets use ``jax.vmap(simulate_unchecked, in_axes=(0, None, None))``
     or `jaxhyst.simulate_batch`.
     """
     _check_inputs(params, actuator, drive, variant, substeps)
     _check_single(params, drive)
-    return _simulate_jit(params, actuator, drive, variant, substeps)
+    sim = _simulate_jit(params, actuator, drive, variant, substeps)
+    if not isinstance(sim.M, jax.core.Tracer) and not bool(sim.finite):
+        bad = np.flatnonzero(~(np.isfinite(np.asarray(sim.M)) & np.isfinite(np.asarray(sim.y))))
+        i = int(bad[0])
+        raise FloatingPointError(
+            f"The simulation diverged: its signals are not finite from sample {i} (t = "
+            f"{float(drive.t[i]):g} s, H = {float(drive.H[i]):g} A/m) on; the parameters or "
+            "the drive lie outside the model's range. (simulate_unchecked returns the NaN "
+            "instead of raising.)")
+    return sim
 
 
 @eqx.filter_jit

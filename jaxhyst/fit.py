@@ -1,0 +1,36 @@
+"""Identification with the identifiability report attached: `solve`, `multistart` and
+`run_hybrid` of `jaxhyst.identify`, each followed by `jaxhyst.analysis.identifiability`
+at the result (one jacfwd of the model). This module sits above both packages, so that
+`identify` never imports `analysis`."""
+
+from __future__ import annotations
+
+import functools
+
+from . import identify
+from .analysis.identifiability import identifiability
+
+
+def attach_report(result, problem, report: bool = True):
+    """``result`` with its identifiability report (or the reason it is missing)."""
+    if not report or result.outcome is identify.Outcome.nonfinite:
+        return result
+    try:
+        return result.with_report(identifiability(problem, result.params))
+    except (ValueError, FloatingPointError) as err:
+        return result.with_report(None, error=str(err))
+
+
+def _with_report(fn):
+    @functools.wraps(fn)
+    def wrapped(problem, *args, report: bool = True, **kwargs):
+        return attach_report(fn(problem, *args, **kwargs), problem, report)
+
+    wrapped.__doc__ = (fn.__doc__ or "") + (
+        "\n\n    ``report`` (keyword, default True): attach the identifiability report.")
+    return wrapped
+
+
+solve = _with_report(identify.solve)
+multistart = _with_report(identify.multistart)
+run_hybrid = _with_report(identify.run_hybrid)

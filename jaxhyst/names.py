@@ -1,0 +1,13 @@
+"""The names the command line and the API accept, in one place (no JAX import here, so
+that ``jaxhyst --help`` stays fast). `jaxhyst.identify` maps each name to its object and
+the tests check that the tables agree."""
+
+#: Local solvers by name (`jaxhyst.identify.SOLVERS` holds their factories).
+SOLVER_NAMES = ("lm", "indirect_lm", "dogleg", "lma", "tra", "bfgs")
+
+#: The paper's hybrid GAs and the plain GA (`jaxhyst.identify.HYBRIDS`).
+HYBRID_NAMES = ("GATR1", "GALM1", "GATR2", "GALM2", "GA")
+
+#: Jiles–Atherton forms: command-line name → class name in `jaxhyst`.
+VARIANT_CLASSES = {"energy": "EnergyBasedJA", "classic": "ClassicJA",
+                   "venkataraman": "VenkataramanJA", "pop": "PopJA"}
