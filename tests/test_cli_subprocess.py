@@ -81,8 +81,10 @@ def test_sharded_population_matches_unsharded():
     with open(os.path.join(d, "inner.json")) as fh:
         out = json.load(fh)
     assert out["devices"] == 2
-    # each member's computation is independent: the same numbers up to round-off
-    assert out["ga_history_max_rel_diff"] <= 1e-12, out
+    # each member's result is independent of the others up to round-off; the batch rule of
+    # the time loop takes its switch branch when any member of a device's share needs it,
+    # so how the population is split changes the round-off (measured 2.9e-11 relative)
+    assert out["ga_history_max_rel_diff"] <= 1e-9, out
     assert out["ga_params_max_rel_diff"] <= 1e-9, out
     # a joint problem's loops split over the devices: the same residuals and Jacobian
     assert out["loops_sharded"], out
