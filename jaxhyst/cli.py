@@ -140,10 +140,6 @@ def _actuator(spec: str):
                           for k, v in d.items()})
 
 
-def _actuator_to_json(a) -> dict:
-    return a.to_dict()
-
-
 def _bounds(spec: str):
     import jaxhyst as jh
     from jaxhyst.io import bounds_from_json, read_json
@@ -334,7 +330,7 @@ def _identify(args) -> int:
     bounds = _bounds(args.bounds)
     actuator = _actuator(args.actuator)
     spec = {"data": os.path.abspath(args.data), "columns": args.columns, "loop": args.loop,
-            "output": args.output, "actuator": _actuator_to_json(actuator),
+            "output": args.output, "actuator": actuator.to_dict(),
             "bounds": bounds_to_json(bounds), "fixed": _fixed(args.fix, known),
             "run_in_periods": args.run_in_periods, "substeps": args.substeps,
             "variant": args.variant, "joint": args.joint,
@@ -507,10 +503,11 @@ def _reproduce_experiment(args, out) -> int:
         study = table2_study(quick=args.quick, seeds=seeds, progress=not args.json)
     name = args.study
     figures = []
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
     if out and args.png:
         from jaxhyst.plots import plot_frequency_response, plot_table3_loops
 
-        out.mkdir(parents=True, exist_ok=True)
         if name == "table3":
             import jaxhyst as jh
             from jaxhyst.study import TABLE3_FREQUENCIES
@@ -527,7 +524,6 @@ def _reproduce_experiment(args, out) -> int:
                 marks=(fm, np.asarray(jh.frequency_response(p, jh.ACTUATOR2, fm))))
             figures = ["fig7_loops.png", "fig8_frequency_response.png"]
     if out:
-        out.mkdir(parents=True, exist_ok=True)
         write_json(out / f"{name}.json", study)
         atomic_write_text(out / f"{name}.md", study["markdown"] + "\n")
     summary = {k: v for k, v in study.items() if k != "loops"}

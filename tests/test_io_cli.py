@@ -144,7 +144,7 @@ def test_frequency_response_and_result_json_round_trip(tmp_path, capsys):
 def test_joint_bh_problem_from_a_multi_loop_file(tmp_path):
     """`identify --joint` on a file of B(H) loops without time: the problem the CLI builds
     (and `report` rebuilds from the result JSON) reproduces the generating model."""
-    from jaxhyst.cli import _actuator_to_json, build_problem
+    from jaxhyst.cli import build_problem
     from jaxhyst.identify.joint import NO_ACTUATOR
     from jaxhyst.io import bounds_to_json
 
@@ -159,7 +159,7 @@ def test_joint_bh_problem_from_a_multi_loop_file(tmp_path):
     f = tmp_path / "bh.csv"
     f.write_text("\n".join(rows) + "\n")
     spec = {"data": str(f), "columns": None, "loop": None, "output": None,
-            "actuator": _actuator_to_json(NO_ACTUATOR), "bounds": bounds_to_json(jh.TABLE1_BOUNDS),
+            "actuator": NO_ACTUATOR.to_dict(), "bounds": bounds_to_json(jh.TABLE1_BOUNDS),
             "fixed": {"Ms": p.Ms}, "run_in_periods": 1, "substeps": 4, "variant": "classic",
             "joint": True, "per_loop": ["c"]}
     problem = build_problem(spec)
