@@ -17,7 +17,7 @@ import os
 import sys
 from pathlib import Path
 
-from jaxhyst.names import HYBRID_NAMES, SOLVER_NAMES, VARIANT_CLASSES
+from jaxhyst.names import DEFAULT_SUBSTEPS, HYBRID_NAMES, SOLVER_NAMES, VARIANT_CLASSES
 
 UNITS_HELP = ("Units: H A/m, I A, y m, M A/m, B T, t s, f Hz; Ms, a, k A/m; E N/m^2, "
               "Kz N/m, Mz kg, Cz N*s/m; lambda_s, alpha, c dimensionless.")
@@ -140,16 +140,48 @@ def _actuator(spec: str):
                           for k, v in d.items()})
 
 
-def _bounds(spec: str):
+def _bounds(spec: str | None):
+    """--bounds: None (the default box), the table1 preset, or the changes a JSON file
+    names ({name: [lower, upper]}, any subset of the parameters)."""
     import jaxhyst as jh
-    from jaxhyst.io import bounds_from_json, read_json
+    from jaxhyst.io import bounds_changes_from_json, read_json
 
+    if spec is None:
+        return None
     if spec == "table1":
         return jh.TABLE1_BOUNDS
     if not os.path.exists(spec):
         raise CLIError(f"--bounds {spec!r}: not a preset (table1) nor a JSON file "
                        "{name: [lower, upper]}.")
-    return bounds_from_json(read_json(spec))
+    return bounds_changes_from_json(read_json(spec), f"--bounds {spec}")
+
+
+def _resolve_bounds(spec: dict, given):
+    """The full box of a fit (and a line saying where it came from): for M or B data the
+    box derived from the loops, else the paper's Table 1 box; a bounds file's entries
+    replace the defaults for the parameters it names; a preset is used as is."""
+    import jaxhyst as jh
+    from jaxhyst.identify.measured import loop_bounds, merge_bounds
+    from jaxhyst.io import SIGNAL_OUTPUTS, read_loops
+
+    if isinstance(given, jh.Bounds):
+        return given, None
+    loops = read_loops(spec["data"], spec.get("columns"))
+    if not spec.get("joint") and spec.get("loop") is not None:
+        loops = [lp for lp in loops if lp.index == spec["loop"]] or loops
+    out = _loop_signal(spec, loops[0], spec.get("output"))
+    kind = SIGNAL_OUTPUTS[out]
+    if kind not in ("magnetization", "flux_density"):
+        named = f" with {sorted(given)} from the bounds file" if given else ""
+        return (merge_bounds(jh.TABLE1_BOUNDS, given or {}),
+                f"bounds: the paper's Table 1 box{named}")
+    actuator = jh.Actuator(**spec["actuator"])
+    Hs = [_loop_field(lp, actuator, spec["data"]) for lp in loops]
+    bounds = loop_bounds(Hs, [lp.signals[out] for lp in loops], kind, given)
+    lo, hi = bounds.lower.to_dict(), bounds.upper.to_dict()
+    text = ", ".join(f"{n} [{lo[n]:.3g}, {hi[n]:.3g}]" for n in ("Ms", "a", "k", "alpha", "c"))
+    named = f" ({sorted(given)} from the bounds file)" if given else ""
+    return bounds, f"bounds derived from the data{named}: {text}"
 
 
 def _fixed(items, params) -> dict:
@@ -268,12 +300,15 @@ def _loop_field(loop, actuator, source):
 
 def _loop_drive(spec, loop, out, actuator):
     import jaxhyst as jh
+    from jaxhyst.identify.measured import monotone_branches
     from jaxhyst.io import SIGNAL_OUTPUTS
 
     H = _loop_field(loop, actuator, spec["data"])
     if loop.t is None and SIGNAL_OUTPUTS[out] in ("displacement", "strain"):
         raise CLIError(f"{spec['data']} has no time column t; {out} depends on the structural "
                        "dynamics, which need times (only M or B loops may omit t).")
+    if SIGNAL_OUTPUTS[out] in ("magnetization", "flux_density"):
+        H = monotone_branches(H)  # reversals below 5 % of the range are noise
     return jh.drive_from_record(loop.t, H, run_in_periods=spec.get("run_in_periods", 1))
 
 
@@ -299,7 +334,7 @@ def build_problem(spec: dict):
         return jh.JointProblem([lp.signals[out] for lp in loops],
                                [_loop_drive(spec, lp, out, actuator) for lp in loops],
                                actuator, space, output=SIGNAL_OUTPUTS[out], variant=variant,
-                               substeps=spec.get("substeps", 2))
+                               substeps=spec.get("substeps", DEFAULT_SUBSTEPS))
     if spec.get("loop") is None:
         if len(loops) > 1:
             raise CLIError(f"{spec['data']} holds loops {ids}; choose one with --loop, or fit "
@@ -315,7 +350,53 @@ def build_problem(spec: dict):
     space = jh.ParameterSpace(bounds, fixed or None)
     return jh.Problem(loop.signals[out], _loop_drive(spec, loop, out, actuator), actuator,
                       space, output=SIGNAL_OUTPUTS[out], variant=variant,
-                      substeps=spec.get("substeps", 2))
+                      substeps=spec.get("substeps", DEFAULT_SUBSTEPS))
+
+
+def _warn(args, text: str) -> None:
+    print(f"jaxhyst {args.command}: warning: {text}", file=sys.stderr, flush=True)
+
+
+def _build_with_warnings(args, spec):
+    """`build_problem`, its Python warnings (coarse sampling) as one line each."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        problem = build_problem(spec)
+    for w in caught:
+        _warn(args, " ".join(str(w.message).split()))
+    return problem
+
+
+def _method(args, problem) -> str:
+    """--method auto: GATR1 (the paper) for actuator outputs, multi-start LM for M/B."""
+    if args.method != "auto":
+        return args.method
+    return "lm" if problem.output in ("magnetization", "flux_density") else "GATR1"
+
+
+def _read_start(args):
+    """The parameters of an earlier result (--start), or None."""
+    from jaxhyst.io import parameters_from_json, read_json
+
+    if not args.start:
+        return None
+    return parameters_from_json(read_json(args.start), f"parameters in --start {args.start}")
+
+
+def _start_params(args, p, problem):
+    """The parameters ``p`` of --start for ``problem`` (per loop for a joint one)."""
+    L = getattr(problem, "n_loops", None)
+    if L is not None:  # a joint problem: per-loop leaves
+        import jax.numpy as jnp
+
+        p = type(p).from_array(jnp.broadcast_to(jnp.atleast_2d(p.to_array()),
+                                                (L, p.to_array().shape[-1])))
+    elif p.to_array().ndim != 1:
+        raise CLIError(f"--start {args.start}: a joint (per-loop) result cannot start a "
+                       "single-loop fit.")
+    return p
 
 
 def _identify(args) -> int:
@@ -327,22 +408,37 @@ def _identify(args) -> int:
 
     _check_outputs(args)
     known = _params(args.params) if args.params else None
-    bounds = _bounds(args.bounds)
+    given = _bounds(args.bounds)
     actuator = _actuator(args.actuator)
     spec = {"data": os.path.abspath(args.data), "columns": args.columns, "loop": args.loop,
             "output": args.output, "actuator": actuator.to_dict(),
-            "bounds": bounds_to_json(bounds), "fixed": _fixed(args.fix, known),
+            "fixed": _fixed(args.fix, known),
             "run_in_periods": args.run_in_periods, "substeps": args.substeps,
             "variant": args.variant, "joint": args.joint,
             "per_loop": [n.strip() for n in (args.per_loop or "").split(",") if n.strip()]}
     if spec["per_loop"] and not args.joint:
         raise CLIError("--per-loop needs --joint (several loops fitted together).")
-    if args.method not in HYBRID and (args.checkpoint or args.resume):
+    if args.method in HYBRID and args.start:
+        raise CLIError("--start applies to the local solvers (e.g. --method lm); a hybrid GA "
+                       "searches the whole box.")
+    if args.method not in HYBRID and args.method != "auto" and (args.checkpoint or
+                                                                 args.resume):
         raise CLIError("--checkpoint/--resume apply to the hybrid GAs; a local solve is not "
                        "checkpointed (it is short: rerun it).")
-    problem = build_problem(spec)
+    start = _read_start(args)
+    bounds, where = _resolve_bounds(spec, given)
+    spec["bounds"] = bounds_to_json(bounds)
+    problem = _build_with_warnings(args, spec)
+    if where and args.progress:
+        print(f"[identify] {where}", file=sys.stderr, flush=True)
+    method = _method(args, problem)
+    if args.start and method in HYBRID:  # (only with --method auto) a start means a local solve
+        method = "lm"
+    if method not in HYBRID and (args.checkpoint or args.resume):
+        raise CLIError(f"--checkpoint/--resume apply to the hybrid GAs; --method {method} is a "
+                       "local solve (not checkpointed: rerun it).")
     n = problem.space.n_free
-    if args.method in HYBRID:
+    if method in HYBRID:
         settings = jh.GASettings()
         overrides = {k: v for k, v in (("T2", args.generations), ("q1", args.population),
                                        ("T3", args.max_steps)) if v is not None}
@@ -351,68 +447,95 @@ def _identify(args) -> int:
         settings = jh.GASettings(**{**settings.__dict__, **overrides})
         if args.checkpoint is None and args.resume:
             raise CLIError("--resume needs --checkpoint FILE.")
-        result = jh.run_hybrid(problem, args.method, seed=args.seed, settings=settings,
+        result = jh.run_hybrid(problem, method, seed=args.seed, settings=settings,
                                progress=args.progress, checkpoint=args.checkpoint,
                                checkpoint_every=args.checkpoint_every, resume=args.resume)
-    elif args.starts <= 1:  # one start, from the centre of the box
+    elif args.start or args.starts <= 1:  # one start: an earlier result, or the box centre
+        start = _start_params(args, start, problem) if args.start else np.full(n, 0.5)
         if args.progress:
-            print(f"[{args.method}] one start at the centre of the box ...", file=sys.stderr,
-                  flush=True)
-        result = jh.solve(problem, np.full(n, 0.5), solver=args.method,
-                          max_steps=args.max_steps or 200)
+            where = f"from {args.start}" if args.start else "at the centre of the box"
+            print(f"[{method}] one start {where}", file=sys.stderr, flush=True)
+        result = jh.solve(problem, start, solver=method, max_steps=args.max_steps or 200,
+                          progress=bool(args.progress))
     else:
         starts = np.random.default_rng(args.seed).uniform(0.0, 1.0, (args.starts, n))
         if args.progress:
-            print(f"[{args.method}] {len(starts)} random starts in one vmapped batch ...",
+            print(f"[{method}] {len(starts)} random starts in one vmapped batch",
                   file=sys.stderr, flush=True)
-        result = jh.multistart(problem, starts, solver=args.method,
-                               max_steps=args.max_steps or 200)
+        result = jh.multistart(problem, starts, solver=method,
+                               max_steps=args.max_steps or 200, progress=bool(args.progress))
     if stop_requested() and result.result != "interrupted":  # Ctrl-C during a local solve
         result = result.with_outcome("interrupted")
     d = result.to_dict()
-    d["problem"] = spec
+    d["problem"] = {**spec, "data": _portable_path(spec["data"], args.out)}
     if "history" in result.extra:
         d["history"] = result.extra["history"]
+    if args.png:
+        _identify_figure(args, problem, result)
     if args.out:
         write_json(args.out, d)
-    if args.png and args.joint:
-        from jaxhyst.plots import plot_fit
+    text = str(result) + (f"\n  wrote {args.out}" if args.out else "")
+    _print(args, d, text)
+    for w in result.warnings:
+        _warn(args, w)
+    return _exit_status(result)
 
+
+def _portable_path(path: str, out: str | None) -> str:
+    """``path`` relative to the directory of the result file ``out`` (so that a result
+    moved together with its data still finds them); absolute when on another drive."""
+    base = os.path.dirname(os.path.abspath(out)) if out else os.getcwd()
+    try:
+        return os.path.relpath(path, base)
+    except ValueError:
+        return path
+
+
+def _identify_figure(args, problem, result) -> None:
+    import numpy as np
+
+    from jaxhyst.io import read_loops
+    from jaxhyst.plots import plot_fit, plot_history
+
+    flags = (" — at bound: " + ", ".join(result.at_bound)) if result.at_bound else ""
+    if args.joint:
         pred = np.asarray(problem.predict_loops(result.params))
         mask = np.asarray(problem.mask)
         H = np.asarray(problem.drive.H)[:, problem.drive.run_in:]
         plot_fit([H[i][mask[i]] for i in range(problem.n_loops)],
                  [np.asarray(problem.padded)[i][mask[i]] for i in range(problem.n_loops)],
                  [pred[i][mask[i]] for i in range(problem.n_loops)], problem.output, args.png,
-                 title=f"{result.solver}: {problem.n_loops} loops fitted jointly")
-    elif args.png:
-        from jaxhyst.plots import plot_fit, plot_history
-
-        pred = np.asarray(problem.predict(result.params))
-        plot_fit(problem.drive.observed(problem.drive.H), problem.data, pred, problem.output,
-                 args.png, t=problem.drive.observed(problem.drive.t),
-                 title=f"{result.solver}: measured and fitted ({os.path.basename(args.data)})")
-        if "history" in result.extra and result.extra["history"]:
-            hist_png = str(Path(args.png).with_name(Path(args.png).stem + "_history.png"))
-            plot_history(result.extra["history"], problem.space.names, problem.space.lower,
-                         problem.space.upper, hist_png, title=result.solver)
-    text = str(result) + (f"\n  wrote {args.out}" if args.out else "")
-    _print(args, d, text)
-    return _exit_status(result)
+                 title=f"{result.solver}: {problem.n_loops} loops fitted jointly{flags}")
+        return
+    has_t = read_loops(args.data, args.columns)[0].t is not None
+    pred = np.asarray(problem.predict(result.params))
+    plot_fit(problem.drive.observed(problem.drive.H), problem.data, pred, problem.output,
+             args.png, t=problem.drive.observed(problem.drive.t) if has_t else None,
+             title=f"{result.solver}: measured and fitted ({os.path.basename(args.data)})"
+             + flags)
+    if "history" in result.extra and result.extra["history"]:
+        hist_png = str(Path(args.png).with_name(Path(args.png).stem + "_history.png"))
+        plot_history(result.extra["history"], problem.space.names, problem.space.lower,
+                     problem.space.upper, hist_png, title=result.solver + flags)
 
 
 EXIT_HELP = ("Exit status: 0 success; 2 bad input (one-line message); 3 the fit stopped "
-             "short (step limit reached, non-finite cost or solver failure: the result is "
-             "written and says so); 130 interrupted (Ctrl-C/SIGTERM: the best point so far "
-             "and the checkpoint are written).")
+             "short (step limit reached, non-finite cost or solver failure) or ended far from "
+             "its data (a loop's rms error above 20 % of its size, or far above the other "
+             "loops'): the result is written and says so; 4 converged with a parameter at a "
+             "bound (a constrained optimum: widen the bounds); 130 interrupted "
+             "(Ctrl-C/SIGTERM: the best point so far and the checkpoint are written).")
 
 
 def _exit_status(result) -> int:
-    """0 for a converged fit, 130 for an interrupted run, 3 for one that stopped short or
-    failed (max steps, non-finite cost, solver failure)."""
+    """0 for a converged fit, 130 for an interrupted run, 3 for one that stopped short,
+    failed (max steps, non-finite cost, solver failure) or ended far from its data, 4 for
+    a converged fit with a parameter at a bound."""
     if result.result == "interrupted":
         return 130
-    return 0 if result.success else 3
+    if not result.success or result.far_from_data:
+        return 3
+    return 4 if result.at_bound else 0
 
 
 # -- report -------------------------------------------------------------------------------
@@ -427,7 +550,11 @@ def _report(args) -> int:
     saved = read_json(args.result)
     if "problem" not in saved:
         raise CLIError(f"{args.result} is not a jaxhyst identify result (no 'problem' entry).")
-    problem = build_problem(saved["problem"])
+    spec = dict(saved["problem"])
+    if not os.path.isabs(spec["data"]):  # stored relative to the result file
+        spec["data"] = os.path.join(os.path.dirname(os.path.abspath(args.result)),
+                                    spec["data"])
+    problem = build_problem(spec)
     params = parameters_from_json(saved, f"parameters in {args.result}")
     rep = identifiability(problem, params, max_rel_se=args.max_rel_se)
     summary = {"identifiability": rep.to_dict(), "suggest_fixed": list(rep.suggest_fixed())}
@@ -616,7 +743,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--periods", type=POSITIVE, default=1.0, help="observed periods")
     sim.add_argument("--samples-per-period", type=POSITIVE_INT, default=200,
                      help="samples per drive period")
-    sim.add_argument("--substeps", type=POSITIVE_INT, default=2, help="RK4 substeps per sample")
+    sim.add_argument("--substeps", type=POSITIVE_INT, default=DEFAULT_SUBSTEPS,
+                     help="RK4 substeps per sample")
     sim.add_argument("--variant", choices=VARIANTS, default="energy",
                      help="Jiles–Atherton form (energy: the paper's)")
     sim.add_argument("--csv", help="write the signals here (SI units in the header)")
@@ -644,13 +772,18 @@ def build_parser() -> argparse.ArgumentParser:
                      "e.g. 't,H,y [um]'")
     ide.add_argument("--actuator", default="actuator1",
                      help="actuator1, actuator2 or a JSON file {Ar, lr, n, Hb}")
-    ide.add_argument("--bounds", default="table1",
-                     help="table1 or a JSON file {name: [lower, upper]} (SI)")
+    ide.add_argument("--bounds", help="search box: table1, or a JSON file {name: [lower, "
+                     "upper]} (SI) naming only the parameters it changes. Default: for M or "
+                     "B data a box derived from the loops (field and magnetization "
+                     "amplitudes, coercive field; printed), else the paper's Table 1 box")
     ide.add_argument("--fix", action="append", help="hold parameters fixed: 'Ms=7.65e5' or "
                      "'Ms,lambda_s' with --params; repeatable")
     ide.add_argument("--params", help="known values for --fix without a value")
-    ide.add_argument("--method", default="GATR1", choices=HYBRID + LOCAL,
-                     help="a hybrid GA (paper §3.4) or a local solver (multi-start)")
+    ide.add_argument("--method", default="auto", choices=("auto",) + HYBRID + LOCAL,
+                     help="a hybrid GA (paper §3.4) or a local solver (multi-start); auto: "
+                     "GATR1 for y/strain/lambda data, lm for M or B loops")
+    ide.add_argument("--start", help="local solvers: start from the parameters of an "
+                     "earlier result JSON (identify --out)")
     ide.add_argument("--starts", type=POSITIVE_INT, default=8, help="local solvers: random starts, "
                      "solved in one vmapped batch (1: one start at the centre of the box)")
     ide.add_argument("--max-steps", type=POSITIVE_INT, help="local solver iterations (hybrids: T3)")
@@ -667,10 +800,12 @@ def build_parser() -> argparse.ArgumentParser:
     ide.add_argument("--resume", action="store_true", help="continue from --checkpoint")
     ide.add_argument("--run-in-periods", type=COUNT, default=1,
                      help="copies of the record simulated before it (transient)")
-    ide.add_argument("--substeps", type=POSITIVE_INT, default=2, help="RK4 substeps per sample "
-                     "(raise to 4–8 for coarse B–H loops)")
+    ide.add_argument("--substeps", type=POSITIVE_INT, default=DEFAULT_SUBSTEPS,
+                     help="RK4 substeps per sample (a warning says when the record is too "
+                     "coarse for it)")
     ide.add_argument("--progress", type=COUNT, default=10,
-                     help="progress line every N generations on stderr (0: quiet)")
+                     help="progress on stderr: a line every N generations of a hybrid, every "
+                     "2 s of a local solve (0: quiet)")
     ide.add_argument("--out", help="write the result (JSON, names and units) here")
     ide.add_argument("--png", help="measured vs fitted loop with the error (and, for "
                      "hybrids, <name>_history.png)")

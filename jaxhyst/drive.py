@@ -159,7 +159,8 @@ def drive_from_record(t, H, *, run_in_periods: int = 1, ramp_fraction: float = 0
     if not np.all(np.isfinite(H)):
         bad = np.flatnonzero(~np.isfinite(H))[:5].tolist()
         raise ValueError(f"The field record contains NaN or inf at samples {bad}.")
-    _check_field_range(H, "The field record")
+    _check_field_range(H, "The field record", "check its unit (A/m) and the column it "
+                       "was read from")
     if t is None:
         t = np.arange(H.shape[0], dtype=np.float64)  # rate-independent: any time scale
     t = np.asarray(t, dtype=np.float64)
@@ -184,12 +185,12 @@ def drive_from_record(t, H, *, run_in_periods: int = 1, ramp_fraction: float = 0
     return Drive(t_all, H_all, run_in=n_pre)
 
 
-def _check_field_range(H, what: str) -> None:
+def _check_field_range(H, what: str, fix: str = "check its unit (A/m)") -> None:
     big = np.flatnonzero(np.abs(H) > MAX_FIELD)
     if big.size:
         i = int(big[0])
         raise ValueError(f"{what} at sample {i} is {H[i]:g} A/m, beyond {MAX_FIELD:g} A/m "
-                         "(no laboratory field); check its unit (A/m) and column.")
+                         f"(no laboratory field); {fix}.")
 
 
 def _check_number(name, value, rule, unit):

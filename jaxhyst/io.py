@@ -154,10 +154,19 @@ def read_loops(path, columns: list[str] | str | None = None) -> list[Loop]:
     loop, a file with neither H nor I.
     """
     path = Path(path)
+    if path.is_dir():
+        raise DataError(f"data file {str(path)!r} is a directory; give the file inside it.")
     if not path.is_file():
         raise DataError(f"data file {str(path)!r} does not exist.")
-    lines = [(i + 1, ln.strip()) for i, ln in enumerate(path.read_text(encoding="utf-8-sig")
-                                                       .splitlines())]
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise DataError(f"data file {str(path)!r} is not text (byte {err.start} is not "
+                        "UTF-8); export it as CSV/TSV text.") from None
+    if "\x00" in text:
+        raise DataError(f"data file {str(path)!r} is not text (it holds NUL bytes); export "
+                        "it as CSV/TSV text.")
+    lines = [(i + 1, ln.strip()) for i, ln in enumerate(text.splitlines())]
     lines = [(i, ln) for i, ln in lines if ln and not ln.startswith("#")]
     if not lines:
         raise DataError(f"data file {str(path)!r} is empty.")
@@ -280,10 +289,16 @@ def read_json(path) -> dict:
     if not path.is_file():
         raise DataError(f"file {str(path)!r} does not exist.")
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        obj = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise DataError(f"{path.name} is not a text (JSON) file.") from None
     except json.JSONDecodeError as err:
         raise DataError(f"{path.name} is not valid JSON ({err.msg} at line {err.lineno}).") \
             from None
+    if not isinstance(obj, dict):
+        raise DataError(f"{path.name}: expected a JSON object {{name: value, ...}}; got a "
+                        f"{type(obj).__name__}.")
+    return obj
 
 
 # -- parameter, bounds and actuator files ------------------------------------------------
@@ -323,6 +338,30 @@ def bounds_from_json(obj: dict) -> Bounds:
     except (TypeError, ValueError, IndexError):
         raise DataError("bounds: each entry must be [lower, upper] numbers.") from None
     return Bounds.from_dict(pairs)
+
+
+def bounds_changes_from_json(obj: dict, what: str = "bounds") -> dict:
+    """``{name: (lower, upper)}`` (SI) for the parameters a bounds file names (any subset
+    of the ten: the others keep their default box)."""
+    if not isinstance(obj, dict) or not obj:
+        raise DataError(f"{what}: expected an object {{name: [lower, upper]}} naming at least "
+                        "one parameter.")
+    unknown = [n for n in obj if n not in NAMES]
+    if unknown:
+        raise DataError(f"{what}: unknown parameters {unknown}; the names are {list(NAMES)}.")
+    out = {}
+    for n, pair in obj.items():
+        try:
+            lo, hi = float(pair[0]), float(pair[1])
+            if len(pair) != 2:
+                raise ValueError
+        except (TypeError, ValueError, IndexError, KeyError):
+            raise DataError(f"{what}: {n} must be [lower, upper] (two numbers, SI); got "
+                            f"{pair!r}.") from None
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
+            raise DataError(f"{what}: {n} = [{lo:g}, {hi:g}] needs finite lower <= upper.")
+        out[n] = (lo, hi)
+    return out
 
 
 def bounds_to_json(bounds: Bounds) -> dict:

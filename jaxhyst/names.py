@@ -11,3 +11,7 @@ HYBRID_NAMES = ("GATR1", "GALM1", "GATR2", "GALM2", "GA")
 #: Jiles–Atherton forms: command-line name → class name in `jaxhyst`.
 VARIANT_CLASSES = {"energy": "EnergyBasedJA", "classic": "ClassicJA",
                    "venkataraman": "VenkataramanJA", "pop": "PopJA"}
+
+#: RK4 substeps per sample everywhere (simulate, problems, the command line): the setting
+#: whose accuracy docs/theory.md documents.
+DEFAULT_SUBSTEPS = 2

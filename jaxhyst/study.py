@@ -32,8 +32,9 @@ from .params import NAMES, TABLE1_BOUNDS, TABLE1_TRUE, TABLE3, Bounds, Parameter
 
 METHODS = ("GATR1", "GALM1", "GATR2", "GALM2")
 
-#: ``--quick``: a smaller GA on a coarser record (about a minute on 2 cores, compilation
-#: included); the paper's settings otherwise.
+#: ``--quick``: a smaller GA on a coarser record (measured: ~50 s of CPU, mostly
+#: compiling; wall time grows with the load of the machine); the paper's settings
+#: otherwise.
 QUICK = GASettings(q1=60, q2=20, T1=3, T2=40, T3=20, local_steps=4)
 
 

@@ -3,7 +3,7 @@ background when the test session begins (conftest.py) so that their start-up and
 compilation overlap the in-process tests; tests/test_cli_subprocess.py checks what they
 left in their directory.
 
-    python tests/cli_chains.py e2e|resume|reproduce|experiments|sharding DIR
+    python tests/cli_chains.py e2e|resume|reproduce|experiments|sharding|measured DIR
 """
 
 from __future__ import annotations
@@ -140,6 +140,36 @@ def _sharded_loops():
 def reproduce(d):
     rc = run(["reproduce", "table1", "--quick", "--out", d], os.path.join(d, "reproduce.log"))
     return {"reproduce": rc}
+
+
+def measured(d):
+    """A digitized-like B–H loop (noisy H, starting mid-branch, no time column) through the
+    default command; then a bounds file naming only k (its box above the truth: k ends
+    on its bound, exit 4), a fit stopped at its step limit (exit 3), --start from the
+    first result (written to a sub-directory: the data path is stored relative to it)
+    and report on that result."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import numpy as np
+    from test_measured import _digitized
+
+    H, B = _digitized(seed=4)
+    csv = os.path.join(d, "loop.csv")
+    np.savetxt(csv, np.c_[H, 1e3 * B], delimiter=",", header="H [A/m],B [mT]", comments="")
+    box = os.path.join(d, "kbox.json")
+    with open(box, "w") as fh:
+        json.dump({"k": [12.5, 40.0]}, fh)
+    r1, r2 = os.path.join(d, "first.json"), os.path.join(d, "sub", "again.json")
+    return {
+        "default": run(["identify", csv, "--out", r1, "--png", os.path.join(d, "fit.png")],
+                       os.path.join(d, "default.log")),
+        "at_bound": run(["identify", csv, "--bounds", box, "--starts", "1", "--start", r1],
+                        os.path.join(d, "at_bound.log")),
+        "short": run(["identify", csv, "--max-steps", "2", "--starts", "1"],
+                     os.path.join(d, "short.log")),
+        "start": run(["identify", csv, "--start", r1, "--out", r2],
+                     os.path.join(d, "start.log")),
+        "report": run(["report", r2], os.path.join(d, "report.log"), cwd="/"),
+    }
 
 
 def experiments(d):

@@ -144,3 +144,35 @@ def test_reproduce_table3_and_table2_quick():
     assert {"run 0 k", "run 1 k", "run 2 k"} <= {r for r, *_ in rows}
     assert not any(r.endswith("Cz/Mz") for r, *_ in rows)
     print(f"reproduce table3 + table2 --quick: {status['seconds']:.0f} s")
+
+
+def test_measured_loop_default_command_bounds_stops_and_start():
+    """Issue 15 through the command: a digitized-like B–H loop (mT, no t) with every
+    default; a parameter on its bound exits 4 and says so; a fit stopped at its step
+    limit exits 3 and says so; --start continues from a result; report finds the data
+    through the relative path stored in the result."""
+    d, status = _finished("measured")
+    log = _log(d, "default.log")
+    assert status["default"] == 0, log
+    assert "bounds derived from the data: Ms [" in log
+    assert "compiled in" in log and "evaluations, best cost" in log  # progress
+    assert "lambda_s" not in log and "(fixed)" not in log  # only what affects B is printed
+    with open(os.path.join(d, "first.json")) as fh:
+        first = json.load(fh)
+    assert first["success"] and first["at_bound"] == {} and first["warnings"] == []
+    assert first["problem"]["data"] == "loop.csv"  # relative to the result file
+    assert os.path.getsize(os.path.join(d, "fit.png")) > 0
+    log = _log(d, "at_bound.log")
+    assert status["at_bound"] == 4, log
+    assert "warning: k ended at its lower bound 12.5" in log and "AT LOWER BOUND" in log
+    assert "null direction" not in log.lower().replace("no null", "")
+    log = _log(d, "short.log")
+    assert status["short"] == 3, log
+    assert "warning: the fit stopped at its step limit" in log
+    assert status["start"] == 0, _log(d, "start.log")
+    assert "one start from" in _log(d, "start.log")
+    with open(os.path.join(d, "sub", "again.json")) as fh:
+        again = json.load(fh)
+    assert again["problem"]["data"] == os.path.join("..", "loop.csv")
+    assert abs(again["cost"] / first["cost"] - 1) < 1e-6
+    assert status["report"] == 0, _log(d, "report.log")

@@ -88,12 +88,17 @@ def test_single_solve_result_object_report_and_immutability(problem):
     assert "lambda_s" in text and "N*s/m" in text and "successful" in text
     d = res.to_dict()
     assert d["params"]["Ms"]["unit"] == "A/m" and d["params"]["Ms"]["free"]
-    # every result of jaxhyst.solve carries its identifiability report
-    assert res.report is not None and len(res.report.null_directions) == 3
+    # every result of jaxhyst.solve carries its identifiability report. Along the three
+    # null directions the solve may run into bounds: a parameter that ends on one is an
+    # active constraint (held there), never a null direction; together they are the
+    # three structural degrees of freedom, with Ms, λs, Mz to fix
+    rep = res.report
+    assert rep is not None and len(rep.null_directions) + len(rep.at_bound) == 3
+    assert set(rep.suggest_fix) | set(rep.at_bound) == {"Ms", "lambda_s", "Mz"}
+    assert set(res.at_bound) == set(rep.at_bound)
     assert "NOT identifiable" in text and "identifiable combination" in text
     back = json.loads(json.dumps(d))
     assert back["identifiability"]["rank"] == 7 and back["outcome"] == "successful"
-    assert back["identifiability"]["suggest_fix"] == ["Ms", "lambda_s", "Mz"]
     with pytest.raises(dataclasses.FrozenInstanceError):
         res.cost = 0.0
     with pytest.raises(TypeError):
@@ -182,7 +187,7 @@ def test_bad_problems_are_refused(problem):
         Problem(np.asarray(problem.data)[:-3], drive, act, problem.space)
     short = jh.Drive(drive.t[: drive.run_in + 8], drive.H[: drive.run_in + 8],
                      run_in=drive.run_in)
-    with pytest.raises(ValueError, match="less than one period"):
+    with pytest.raises(ValueError, match="holds no hysteresis loop"):
         Problem(np.ones(8), short, act, problem.space)
     with pytest.raises(ValueError, match="Unknown output"):
         Problem(problem.data, drive, act, problem.space, output="force")
@@ -241,3 +246,26 @@ def test_box_termination_stops_a_bound_optimum_sooner_at_the_requested_tolerance
     expected = np.asarray(problem.space.free_values(truth))
     np.testing.assert_allclose(found, expected, rtol=1e-8)
     assert float(jnp.sum(problem.residuals(z_box) ** 2)) < 1e-20
+
+
+@pytest.mark.parametrize("solver", ["lm", "bfgs"])
+def test_stepped_local_solve_iterates_like_optimistix_and_stops_when_interrupted(problem,
+                                                                                 solver):
+    """`solve`/`multistart` step the solver from Python (progress, interruption, cached
+    programs); its iterates equal `optx.least_squares`/`optx.minimise` (`run_local`) to
+    round-off, and an interruption returns the point reached, never lost."""
+    from jaxhyst._interrupt import _flag, interruptible
+    from jaxhyst.identify.local import run_local, start_z, stepped_solve
+
+    z0 = start_z(problem, np.stack([_start(problem), np.full(10, 0.4)]))
+    s = make_solver(solver)
+    whole = eqx.filter_jit(jax.vmap(lambda z: run_local(problem, s, z, 8)))(z0)
+    (z, code, steps, cost, _), interrupted = stepped_solve(problem, s, z0, 8)
+    assert not interrupted and np.asarray(steps).tolist() == [8, 8]
+    np.testing.assert_allclose(np.asarray(z), np.asarray(whole[0]), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(cost), np.asarray(whole[3]), rtol=1e-9)
+    assert np.asarray(code).tolist() == np.asarray(whole[1]).tolist()  # max steps
+    with interruptible():
+        _flag["stop"] = True  # as a Ctrl-C during the first chunk of steps
+        res = jh.identify.solve(problem, _start(problem), solver=solver)
+    assert res.result == "interrupted" and res.steps == 1 and np.isfinite(res.cost)

@@ -111,12 +111,16 @@ def test_other_bad_arguments_are_one_line_errors(tmp_path, capsys):
     f = tmp_path / "ok.csv"
     f.write_text("t,H,y,M\n" + "".join(f"{t},{h},{y},{y}\n" for _, t, h, y in _loop_rows()))
     bad = tmp_path / "bounds.json"
-    bad.write_text('{"Ms": [1, 2]}')
+    bad.write_text('{"Ms": [2, 1]}')
+    unknown = tmp_path / "unknown.json"
+    unknown.write_text('{"Mass": [1, 2]}')
     cases = [
         (["identify", str(tmp_path / "missing.csv")], "does not exist"),
         (["identify", str(f)], "choose the observed one with --output"),
         (["identify", str(f), "--output", "y", "--fix", "Mass=1"], "unknown parameter"),
-        (["identify", str(f), "--output", "y", "--bounds", str(bad)], "missing"),
+        (["identify", str(f), "--output", "y", "--bounds", str(bad)], "lower <= upper"),
+        (["identify", str(f), "--output", "y", "--bounds", str(unknown)],
+         "unknown parameters ['Mass']"),
         (["identify", str(f), "--output", "y", "--actuator", "nope"], "not a preset"),
         (["simulate", "--params", "table3:7"], "Table 3 has frequencies"),
         (["frequency-response", "--frequencies", "10,-1"], "> 0 Hz"),

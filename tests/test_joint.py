@@ -108,7 +108,11 @@ def test_mnzn_loops_joint_fit_reaches_the_stated_rms_error():
     # quoted in the data's README give 48–75 mT per loop with the same model (docs).
     print(res)
     assert res.rms_error < 6.5e-3, res.rms_error
-    for n in ("Ms", "a", "k", "c"):
+    # c ends on its physical limit 1: an active constraint, not a null direction
+    assert dict(res.at_bound) == {"c": ("upper", 1.0)}
+    assert "physical limit c = 1" in res.warnings[0]
+    assert not res.report.null_directions and res.report.std_errors["c"] is None
+    for n in ("Ms", "a", "k"):
         assert res.report.std_errors[n] is not None
 
 
@@ -122,7 +126,7 @@ def test_loop_problem_from_field_samples_reproduces_a_synthetic_bh_loop():
     B = 4e-7 * np.pi * (H + np.asarray(jh.simulate(p, NO_ACTUATOR, drive, substeps=8)
                                        .observed("M")))
     problem = jh.loop_problem(H, B, jh.TABLE1_BOUNDS, output="flux_density",
-                              fixed={"Ms": p.Ms})
+                              fixed={"Ms": p.Ms}, substeps=8)
     assert problem.space.names == ("a", "k", "alpha", "c")
     assert float(problem.cost_u(problem.space.u_from_params(p))) < 1e-28
     off = eqx.tree_at(lambda q: q.k, p, 1.05 * p.k)
@@ -131,7 +135,7 @@ def test_loop_problem_from_field_samples_reproduces_a_synthetic_bh_loop():
     H0 = 2e4 * np.sin(2 * np.pi * np.arange(101) / 80)
     demag = jh.loop_problem(H0, 4e-7 * np.pi * (H0 + np.asarray(jh.simulate(
         p, NO_ACTUATOR, jh.Drive(np.arange(101.0), H0), substeps=8).M)), jh.TABLE1_BOUNDS,
-        fixed={"Ms": p.Ms}, from_demagnetized=True)
+        fixed={"Ms": p.Ms}, from_demagnetized=True, substeps=8)
     assert demag.drive.run_in == 0
     assert float(demag.cost_u(demag.space.u_from_params(p))) < 1e-28
     with pytest.raises(ValueError, match="start at H = 0"):

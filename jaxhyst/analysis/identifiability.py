@@ -25,6 +25,11 @@ multiplied by s^{v_r}. For a parameter at exactly 0 the box width is used as its
   identifiable" rather than with a huge or NaN interval. An identifiable parameter whose
   relative standard error exceeds ``max_rel_se`` (default 0.5) is "poorly determined"
   (practical non-identifiability: it depends on the noise level).
+- Parameters at a bound (within `BOUND_TOL` of the box width): active constraints of
+  the fit. They are left out of the analysis (never reported as null directions, no
+  interval: the optimum is constrained there) and listed in ``at_bound``. An interior
+  value whose interval reaches beyond a bound is marked "near" it.
+- Only finite combinations with moderate exponents (|p| ≤ 10) are listed.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..identify.result import bound_status
 from ..params import NAMES, UNITS
 
 Z95 = 1.959963984540054
@@ -44,6 +50,9 @@ Z95 = 1.959963984540054
 #: Order in which parameters are preferred as the ones to fix (pivots of the null basis):
 #: material constants from datasheets first, then the measurable mass, then the rest.
 PREFER_FIX = ("Ms", "lambda_s", "Mz", "E", "Kz", "Cz", "alpha", "c", "a", "k")
+
+#: Combinations with a larger exponent are not listed (not a meaningful invariant).
+MAX_EXPONENT = 10.0
 
 
 def _base_name(name: str) -> str:
@@ -145,6 +154,8 @@ class IdentifiabilityReport:
     residuals: np.ndarray  # model − data, output unit
     scale: np.ndarray  # θ0 used for x (|θ| or the box width)
     max_rel_se: float = 0.5
+    at_bound: dict | None = None  # {name: ("lower" | "upper", bound value)}
+    bounds: tuple | None = None  # (lower, upper) of the free values, SI
 
     @property
     def identifiable(self) -> tuple[str, ...]:
@@ -152,7 +163,8 @@ class IdentifiabilityReport:
 
     @property
     def rank(self) -> int:
-        return len(self.names) - len(self.null_directions)
+        """Rank of the Jacobian of the parameters not at a bound."""
+        return len(self.names) - len(self.at_bound or {}) - len(self.null_directions)
 
     def relative_std_errors(self) -> dict:
         """Standard error / |value| (or / box width for a parameter at 0); None if not
@@ -196,8 +208,9 @@ class IdentifiabilityReport:
         columns of the same Jacobian each time)."""
         t = self.max_rel_se if max_rel_se is None else max_rel_se
         fixed = list(self.suggest_fix)
+        held = set(self.at_bound or {})  # active constraints: held already
         while True:
-            keep = [i for i, n in enumerate(self.names) if n not in fixed]
+            keep = [i for i, n in enumerate(self.names) if n not in fixed and n not in held]
             if not keep:
                 return tuple(fixed)
             sub = _analyse([self.names[i] for i in keep], self.values[keep],
@@ -220,6 +233,8 @@ class IdentifiabilityReport:
         return {
             "names": list(self.names), "rank": self.rank,
             "singular_values": [float(s) for s in self.singular_values],
+            "at_bound": {n: {"bound": b, "value": float(v)}
+                         for n, (b, v) in (self.at_bound or {}).items()},
             "condition_number": float(self.condition_number),
             "null_directions": self.null_directions, "suggest_fix": list(self.suggest_fix),
             "poorly_determined": list(self.poorly_determined()),
@@ -240,8 +255,10 @@ class IdentifiabilityReport:
     def __str__(self) -> str:
         sig = ", ".join(f"{k} {v[0]:.3g}{' (est.)' if v[1] else ''}"
                         for k, v in self.group_sigma.items())
-        lines = [f"Identifiability of {len(self.names)} free parameters: rank {self.rank}, "
-                 f"condition number {self.condition_number:.3g}; noise σ: {sig}"]
+        at = self.at_bound or {}
+        held = f" ({len(at)} at a bound, left out)" if at else ""
+        lines = [f"Identifiability of {len(self.names)} free parameters{held}: rank "
+                 f"{self.rank}, condition number {self.condition_number:.3g}; noise σ: {sig}"]
         lines.append("  singular values / σ1: "
                      + ", ".join(f"{s:.2e}" for s in self.singular_values))
         for d in self.null_directions:
@@ -253,11 +270,19 @@ class IdentifiabilityReport:
         for i, n in enumerate(self.names):
             v, u = self.values[i], self.units[i]
             se = self.std_errors[n]
-            if se is None:
+            if n in at:
+                lines.append(f"  {n:<9}= {v:.6g} {u}  AT ITS {at[n][0].upper()} BOUND: an "
+                             "active constraint, no interval (widen the bound if a value "
+                             "beyond it is physical)")
+            elif se is None:
                 lines.append(f"  {n:<9}= {v:.6g} {u}  not identifiable from these data")
             else:
                 lo, hi = self.intervals[n]
                 tag = "  poorly determined" if n in poor else ""
+                if self.bounds is not None and lo < self.bounds[0][i]:
+                    tag += "  (near its lower bound: the interval reaches beyond it)"
+                if self.bounds is not None and hi > self.bounds[1][i]:
+                    tag += "  (near its upper bound: the interval reaches beyond it)"
                 lines.append(f"  {n:<9}= {v:.6g} ± {se:.2g} {u}  (95 %: {lo:.6g} … {hi:.6g})"
                              f"{tag}")
         for c in self.combinations:
@@ -390,7 +415,16 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(e))):
         raise ValueError("The model output or its Jacobian is not finite at these parameters; "
                          "the identifiability analysis needs a point where the model runs.")
-    a = _analyse(names, values, scale, J, e, null_tol)
+    lower, upper = np.asarray(space.lower), np.asarray(space.upper)
+    status = bound_status(values, lower, upper)
+    at_bound = {names[i]: (b, float(lower[i] if b == "lower" else upper[i]))
+                for i, b in status.items()}
+    keep = [i for i in range(len(names)) if i not in status]
+    if not keep:
+        raise ValueError(f"every free parameter ({', '.join(names)}) is at a bound; the fit "
+                         "is constrained everywhere: widen the bounds.")
+    a = _expand(_analyse([names[i] for i in keep], values[keep], scale[keep], J[:, keep], e,
+                         null_tol), names, keep)
     group_sigma = {g.name: (float(s), g.sigma is None)
                    for g, s in zip(problem.groups, sigma, strict=True)}
     combos = []
@@ -402,10 +436,35 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
         sigma=float(sigma[0]), dof=a["dof"], group_sigma=group_sigma,
         std_errors=a["std_errors"], intervals=a["intervals"], correlation=a["correlation"],
         cov_log=a["cov_log"], null_space=a["null_space"], jacobian=J, residuals=e,
-        scale=scale, max_rel_se=max_rel_se,
+        scale=scale, max_rel_se=max_rel_se, at_bound=at_bound, bounds=(lower, upper),
     )  # fmt: skip
-    combos.extend(rep.combination(c) for c in a["combos"])
+    for c in a["combos"]:
+        if max(abs(p) for p in c.values()) > MAX_EXPONENT:
+            continue
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            combo = rep.combination(c)
+        if np.isfinite(combo["value"]) and combo["std_error"] is not None and \
+                np.isfinite(combo["std_error"]):
+            combos.append(combo)
     return rep
+
+
+def _expand(a: dict, names, keep) -> dict:
+    """The analysis of the columns ``keep`` written back to all ``names`` (the others —
+    parameters at a bound — with no error, zero covariance, NaN correlation)."""
+    n, k = len(names), np.asarray(keep)
+    if len(keep) == n:
+        return a
+    cov = np.zeros((n, n))
+    cov[np.ix_(k, k)] = a["cov_log"]
+    corr = np.full((n, n), np.nan)
+    corr[np.ix_(k, k)] = a["correlation"]
+    null = np.zeros((a["null_space"].shape[0], n))
+    null[:, k] = a["null_space"]
+    se = {nm: a["std_errors"].get(nm) for nm in names}
+    ci = {nm: a["intervals"].get(nm) for nm in names}
+    return {**a, "names": tuple(names), "cov_log": cov, "correlation": corr,
+            "null_space": null, "std_errors": se, "intervals": ci}
 
 
 def _unit(name: str) -> str:

@@ -50,6 +50,16 @@ class ProfileLikelihood:
     theta: np.ndarray
     interval: tuple[float | None, float | None]
     results: list[str]
+    roundoff: bool = False  # the best cost is at round-off: noise-free data
+
+    def _digits(self) -> int:
+        """Significant digits that tell neighbouring grid values apart (at least 6)."""
+        g = np.asarray(self.grid, dtype=float)
+        step = np.min(np.diff(g)) if g.size > 1 else 0.0
+        big = float(np.max(np.abs(g))) if g.size else 0.0
+        if not (step > 0 and big > 0):
+            return 6
+        return int(min(17, max(6, np.ceil(np.log10(big / step)) + 2)))
 
     @property
     def identifiable(self) -> bool:
@@ -57,20 +67,25 @@ class ProfileLikelihood:
 
     def __str__(self) -> str:
         lo, hi = self.interval
-        lo_s = "unbounded" if lo is None else f"{lo:.6g}"
-        hi_s = "unbounded" if hi is None else f"{hi:.6g}"
-        head = (f"Profile likelihood of {self.name} (best {self.value:.6g}): 95 % interval "
+        k = self._digits()
+        lo_s = "unbounded" if lo is None else f"{lo:.{k}g}"
+        hi_s = "unbounded" if hi is None else f"{hi:.{k}g}"
+        head = (f"Profile likelihood of {self.name} (best {self.value:.{k}g}): 95 % interval "
                 f"{lo_s} … {hi_s}")
         if not self.identifiable:
             head += "  — not bounded by the data on that side (practically non-identifiable)"
-        rows = [f"  {v:>13.6g}  Δχ² = {d:.4g}" for v, d in zip(self.grid, self.delta_chi2,
-                                                                  strict=True)]
+        if self.roundoff:
+            head += ("\n  the best fit is exact to round-off (noise-free data): Δχ² below "
+                     "measures round-off, not information; profile noisy or measured data")
+        rows = [f"  {v:>{k + 7}.{k}g}  Δχ² = {d:.4g}"
+                for v, d in zip(self.grid, self.delta_chi2, strict=True)]
         return "\n".join([head, *rows])
 
     def to_dict(self) -> dict:
         return {"name": self.name, "value": self.value, "grid": self.grid.tolist(),
                 "cost": self.cost.tolist(), "delta_chi2": self.delta_chi2.tolist(),
-                "interval": list(self.interval), "results": self.results}
+                "interval": list(self.interval), "results": self.results,
+                "roundoff": self.roundoff}
 
 
 def _crossing(grid, d, i0, direction):
@@ -140,9 +155,13 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
     d = np.where(np.isfinite(d), d, np.inf)
     i0 = int(np.argmin(d))
     interval = (_crossing(grid, d, i0, -1), _crossing(grid, d, i0, +1))
+    # noise-free data: the unweighted cost (a mean square relative to the data's size)
+    # at the level of float64 round-off
+    roundoff = sigma2 != 1.0 and c_min <= 1e-20
     return ProfileLikelihood(name=name, value=value, grid=grid, cost=costs, delta_chi2=d,
                              theta=theta, interval=interval,
-                             results=[CODES[int(c)].value for c in np.asarray(codes)])
+                             results=[CODES[int(c)].value for c in np.asarray(codes)],
+                             roundoff=bool(roundoff))
 
 
 @eqx.filter_jit

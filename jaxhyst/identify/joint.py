@@ -240,15 +240,20 @@ def space_bounds_of_loop(space: ParameterSpace) -> Bounds:
     return Bounds(p, p)
 
 
-def loop_problem(H, data, bounds: Bounds, *, output: str = "flux_density", t=None,
-                 fixed: dict | None = None, variant: JAVariant = PAPER_VARIANT,
-                 substeps: int = 8, from_demagnetized: bool = False,
-                 run_in_periods: int = 1) -> Problem:
+def loop_problem(H, data, bounds: Bounds | dict | None = None, *,
+                 output: str = "flux_density", t=None, fixed: dict | None = None,
+                 variant: JAVariant = PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
+                 from_demagnetized: bool = False, run_in_periods: int = 1,
+                 monotone_field: bool = True, require_full_period: bool = True) -> Problem:
     """A magnetization-only problem from one measured loop.
 
     **Arguments:**
-    - ``H``: field samples, A/m, in the order measured (one or more closed loops).
+    - ``H``: field samples, A/m, in the order measured (one or more closed loops, starting
+      anywhere; noisy or digitized).
     - ``data``: B (T) for ``output="flux_density"`` or M (A/m) for ``"magnetization"``.
+    - ``bounds``: `Bounds`; or ``None`` for the box derived from the loop
+      (`jaxhyst.identify.measured.default_loop_bounds`), or a dict ``{name: (lower,
+      upper)}`` changing only those parameters of it.
     - ``t``: sample times (s) or ``None`` (the JA model is rate independent).
     - ``fixed``: parameters to hold; λs, E, Kz, Mz, Cz never affect M or B and are
       always fixed (at their box centre unless given).
@@ -256,20 +261,32 @@ def loop_problem(H, data, bounds: Bounds, *, output: str = "flux_density", t=Non
       H = 0 (it contains the initial curve), so it is fitted from its first sample with
       no ramp or run-in; otherwise a ramp from H = 0 and ``run_in_periods`` copies of the
       (closed) loop precede it.
-    - ``substeps``: RK4 substeps per sample (default 8: measured loops are often coarse
-      compared with a, the width of the anhysteretic).
+    - ``monotone_field``: replace field reversals smaller than 5 % of the range (noise of
+      the measurement or the digitizer) by the monotone least-squares fit of each branch
+      (`jaxhyst.identify.measured.monotone_branches`); the data are not changed.
+    - ``substeps``: RK4 substeps per sample (the package default; a `SamplingWarning`
+      says when the record is too coarse for it).
+    - ``require_full_period``: refuse a record that holds no loop (see `Problem`).
     """
+    from .measured import loop_bounds, monotone_branches
+
     if output not in ("flux_density", "magnetization"):
         raise ValueError("loop_problem observes magnetization or flux_density; use Problem "
                          "for displacement or strain.")
     H = np.asarray(H, dtype=float)
+    if H.ndim != 1 or np.shape(data) != H.shape:
+        raise ValueError(f"H and data must be 1-D of equal length; got shapes {H.shape} and "
+                         f"{np.shape(data)}.")
+    bounds = loop_bounds(H, np.asarray(data, float), output, bounds)
+    H_model = monotone_branches(H) if monotone_field else H
     if from_demagnetized:
         if abs(H[0]) > 1e-12 * max(np.max(np.abs(H)), 1.0):
             raise ValueError("from_demagnetized=True needs the record to start at H = 0.")
         tt = np.arange(H.shape[0], dtype=float) if t is None else np.asarray(t, float)
-        drive = Drive(tt, H)
+        drive = Drive(tt, H_model)
     else:
-        drive = drive_from_record(t, H, run_in_periods=run_in_periods)
+        drive = drive_from_record(t, H_model, run_in_periods=run_in_periods)
     return Problem(data, drive, NO_ACTUATOR,
                    ParameterSpace(bounds, fix_structural(bounds, fixed)), output=output,
-                   variant=variant, substeps=substeps)
+                   variant=variant, substeps=substeps,
+                   require_full_period=require_full_period)

@@ -9,6 +9,7 @@ gradient. Never finite differences.
 
 from __future__ import annotations
 
+import sys
 import time
 
 import equinox as eqx
@@ -18,7 +19,7 @@ import numpy as np
 import optimistix as optx
 
 from .problem import AbstractProblem
-from .result import IdentificationResult, Outcome
+from .result import IdentificationResult, Outcome, bound_status
 from .solvers import BoxTermination, final_step_size, make_solver, solver_name
 from .space import u_from_z, z_from_u
 
@@ -82,12 +83,147 @@ def run_local(problem: AbstractProblem, solver, z0, max_steps: int):
     return z, _code(sol.result), sol.stats["num_steps"], cost, final_step_size(sol.state)
 
 
-_run_jit = eqx.filter_jit(run_local)
+# -- the same solve, stepped from Python ----------------------------------------------------
+#
+# `solve` and `multistart` drive the solver's public interface (init / step / terminate /
+# postprocess of an Optimistix solver) from Python, a chunk of steps per dispatch, exactly
+# as `optx.least_squares`/`optx.minimise` loop over them (`optimistix._iterate`: the
+# termination test sees the previous iterate, a non-finite iterate ends the solve, the
+# static part of the state is the initial one). Between chunks the driver reports the
+# cost and honours an interruption; nothing in the compiled programs calls back into
+# Python, so they go into the persistent compilation cache. `run_local` stays the
+# traceable whole solve (hybrids, replicate fits); tests check both give the same.
+
+_TAGS = frozenset()
+
+
+def _objective(problem, solver):
+    """(solver as run, fn(y, args) -> (out, aux), options) as Optimistix sets them up."""
+    if isinstance(solver, optx.AbstractMinimiser):
+        return solver, (lambda y, args: (problem.cost(y, args), None)), {}
+    wrapped = BoxTermination(solver) if isinstance(solver, optx.AbstractGaussNewton) \
+        else solver
+    res = jacobian_linearized(problem.residuals)
+    return wrapped, (lambda y, args: (res(y, args), None)), {"jac": "fwd"}
+
+
+def _terminate(solver, fn, y, options, state):
+    term, result = solver.terminate(fn, y, None, options, state, _TAGS)
+    finite = jnp.all(jnp.isfinite(y))
+    return term, optx.RESULTS.where(finite, result, optx.RESULTS.nonfinite)
+
+
+def _init_one(problem, solver, z0):
+    solver, fn, options = _objective(problem, solver)
+    f_struct, aux_struct = jax.eval_shape(fn, z0, None)
+    state = solver.init(fn, z0, None, options, f_struct, aux_struct, _TAGS)
+    term, result = _terminate(solver, fn, z0, options, state)
+    dynamic, static = eqx.partition(state, eqx.is_array)
+    return (z0, jnp.array(0), dynamic, term, result), static
+
+
+def _advance_one(problem, solver, static, carry, n, max_steps):
+    solver, fn, options = _objective(problem, solver)
+
+    def cond(c):
+        _, steps, _, term, result, i = c
+        return (~term) & (result == optx.RESULTS.successful) & (steps < max_steps) & (i < n)
+
+    def body(c):
+        y, steps, dynamic, _, _, i = c
+        state = eqx.combine(static, dynamic)
+        new_y, new_state, _ = solver.step(fn, y, None, options, state, _TAGS)
+        term, result = _terminate(solver, fn, y, options, new_state)
+        return (new_y, steps + 1, eqx.filter(new_state, eqx.is_array), term, result, i + 1)
+
+    y, steps, dynamic, term, result, _ = jax.lax.while_loop(cond, body, (*carry, 0))
+    return y, steps, dynamic, term, result
+
+
+def _finish_one(problem, solver, static, carry):
+    solver, fn, options = _objective(problem, solver)
+    y, steps, dynamic, term, result = carry
+    state = eqx.combine(static, dynamic)
+    result = optx.RESULTS.where((result == optx.RESULTS.successful) & ~term,
+                                optx.RESULTS.nonlinear_max_steps_reached, result)
+    y, _, _ = solver.postprocess(fn, y, None, None, options, state, _TAGS, result)
+    return y, _code(result), steps, problem.cost(y), final_step_size(state)
+
+
+def _done(carry, max_steps) -> np.ndarray:
+    _, steps, _, term, result = carry
+    return np.asarray(term | (result != optx.RESULTS.successful) | (steps >= max_steps))
 
 
 @eqx.filter_jit
-def _run_many(problem, solver, z0s, max_steps):
-    return jax.vmap(lambda z0: run_local(problem, solver, z0, max_steps))(z0s)
+def _init_jit(problem, solver, z0s):
+    return eqx.filter_vmap(lambda z: _init_one(problem, solver, z),
+                           out_axes=eqx.if_array(0))(z0s)
+
+
+@eqx.filter_jit
+def _advance_jit(problem, solver, static, carry, n, max_steps):
+    return jax.vmap(lambda c: _advance_one(problem, solver, static, c, n, max_steps))(carry)
+
+
+@eqx.filter_jit
+def _finish_jit(problem, solver, static, carry):
+    return jax.vmap(lambda c: _finish_one(problem, solver, static, c))(carry)
+
+
+@eqx.filter_jit
+def _costs_jit(problem, zs):
+    return jax.vmap(problem.cost)(zs)
+
+
+def _say(label, text, live=False):
+    """A progress line on stderr; on a terminal ``live`` lines overwrite each other."""
+    stream = sys.stderr
+    tty = bool(getattr(stream, "isatty", lambda: False)())
+    print(f"{chr(13) + chr(27) + '[K' if tty else ''}[{label}] {text}",
+          end="" if live and tty else "\n", file=stream, flush=True)
+
+
+def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int,
+                  progress: float | bool = False, label: str = "local"):
+    """Solve from each start of ``z0s`` (K, n) in one vmapped batch, stepped from Python;
+    returns (z, code, steps, cost, final step size) batched over K and whether it was
+    interrupted. ``progress``: seconds between progress lines on stderr (True = 2 s;
+    a live line on a terminal). Ctrl-C/SIGTERM (`jaxhyst._interrupt`) stops after the
+    current chunk of steps with the points reached."""
+    from .._interrupt import interruptible
+
+    every = 2.0 if progress is True else float(progress or 0)
+    t0 = time.perf_counter()
+    if every:
+        _say(label, "compiling the solver (cached on disk by the command line) …")
+    carry, static = _init_jit(problem, solver, z0s)
+    interrupted, chunk, last = False, 1, t0
+    with interruptible() as stop:
+        while not np.all(_done(carry, max_steps)):
+            c0 = time.perf_counter()
+            carry = _advance_jit(problem, solver, static, carry, jnp.asarray(chunk),
+                                 jnp.asarray(max_steps))  # arrays: no recompile
+            jax.block_until_ready(carry)
+            now = time.perf_counter()
+            if now - c0 < 0.25:  # keep each dispatch near a quarter second
+                chunk = min(chunk * 2, 64)
+            if every and (now - last >= every or last == t0):
+                costs = np.asarray(_costs_jit(problem, carry[0]))
+                best = np.min(np.where(np.isfinite(costs), costs, np.inf))
+                _say(label, f"step {int(np.max(carry[1]))}/{max_steps}: best cost "
+                     f"{best:.4e}, {now - t0:.1f} s", live=last != t0)
+                last = now
+            if stop():
+                interrupted = True
+                break
+    out = _finish_jit(problem, solver, static, carry)
+    if every:
+        steps = int(np.max(np.asarray(out[2])))
+        _say(label, f"{'interrupted at' if interrupted else 'done after'} {steps} steps, "
+             f"best cost {np.nanmin(np.asarray(out[3])):.4e}, "
+             f"{time.perf_counter() - t0:.1f} s")
+    return out, interrupted
 
 
 def start_z(problem: AbstractProblem, start) -> jax.Array:
@@ -144,47 +280,74 @@ def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: fl
     if not np.isfinite(cost) and outcome is not Outcome.interrupted:
         outcome = Outcome.nonfinite
     groups, rms, max_abs, sse = _stats(problem.groups, residuals)
+    scales = _data_scales(problem)
+    if scales is not None:  # the built-in problems: max|data| of each group
+        for g, sc in zip(groups.values(), scales, strict=True):
+            g["data_scale"] = sc
     space = problem.space
     values = np.asarray(space.free_from_u(u_from_z(jnp.asarray(z))), dtype=float)
+    lower, upper = np.asarray(space.lower), np.asarray(space.upper)
+    at_bound = {space.names[i]: (side, float(lower[i] if side == "lower" else upper[i]))
+                for i, side in bound_status(values, lower, upper).items()}
     return IdentificationResult(
         params=space.params_from_z(jnp.asarray(z)), free=space.names,
         values=tuple(float(v) for v in values), cost=cost, outcome=outcome, steps=int(steps),
         solver=solver, wall_time=wall, groups=groups, rms_error=rms, max_abs_error=max_abs,
         sse=sse, output=getattr(problem, "output", ""), extra=extra or {},
+        at_bound=at_bound,
     )  # fmt: skip
 
 
+def _data_scales(problem) -> list[float] | None:
+    """max|data| of each residual group of the built-in problems (None for others)."""
+    if hasattr(problem, "scales"):
+        return [float(s) for s in problem.scales]
+    if hasattr(problem, "scale") and len(problem.groups) == 1:
+        return [float(problem.scale)]
+    return None
+
+
 def solve(problem: AbstractProblem, start, solver="lm", max_steps: int = 200,
-          rtol: float = 1e-10, atol: float = 1e-12) -> IdentificationResult:
+          rtol: float = 1e-10, atol: float = 1e-12,
+          progress: bool = False) -> IdentificationResult:
     """Run one local solver from ``start`` (parameters, or box coordinates u).
 
     ``solver``: a name of `jaxhyst.identify.SOLVERS` (with termination tolerances
     ``rtol``/``atol``) or any Optimistix least-squares solver or minimiser object.
     ``max_steps`` bounds the iterations (the paper's T3 for ``lma``/``tra``); a solve
-    that reaches it reports the outcome ``max_steps_reached``, never success."""
+    that reaches it reports the outcome ``max_steps_reached``, never success.
+    ``progress``: say on stderr what is compiling, then the step and cost every
+    ``progress`` seconds (True: 2). Ctrl-C/SIGTERM stops after the current chunk of
+    steps and returns the point reached (outcome ``interrupted``)."""
     z0 = start_z(problem, start)
+    if z0.ndim != 1:
+        raise ValueError("solve takes one start; use multistart for a batch of starts.")
     solver_obj = make_solver(solver, rtol, atol)
     t0 = time.perf_counter()
-    z, code, steps, _, _ = _run_jit(problem, solver_obj, z0, max_steps)
-    z.block_until_ready()
+    (z, code, steps, _, _), interrupted = stepped_solve(
+        problem, solver_obj, z0[None], max_steps, progress, solver_name(solver))
     wall = time.perf_counter() - t0
-    return summarize(problem, z, steps, CODES[int(code)], solver_name(solver), wall)
+    outcome = Outcome.interrupted if interrupted else CODES[int(code[0])]
+    return summarize(problem, z[0], steps[0], outcome, solver_name(solver), wall)
 
 
 def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 200,
-               rtol: float = 1e-10, atol: float = 1e-12) -> IdentificationResult:
+               rtol: float = 1e-10, atol: float = 1e-12,
+               progress: bool = False) -> IdentificationResult:
     """Solve from K starts in one vmapped batch; returns the best, with the per-start
     table (final cost, outcome, steps, free values) in ``extra["starts"]``.
 
     ``starts``: box coordinates of shape (K, n_free), or a batch of parameters. The batch
     runs until its slowest member stops, so ``max_steps`` matters. The outcome is the
-    best start's."""
+    best start's. ``progress`` as for `solve`."""
     z0s = start_z(problem, starts)
     if z0s.ndim != 2:
         raise ValueError("multistart needs a batch of starts, shape (K, n_free).")
     solver_obj = make_solver(solver, rtol, atol)
     t0 = time.perf_counter()
-    zs, codes, steps, costs, _ = _run_many(problem, solver_obj, z0s, max_steps)
+    label = f"{solver_name(solver)} x{z0s.shape[0]}"
+    (zs, codes, steps, costs, _), interrupted = stepped_solve(
+        problem, solver_obj, z0s, max_steps, progress, label)
     costs = np.asarray(costs)
     wall = time.perf_counter() - t0
     ranked = np.where(np.isfinite(costs), costs, np.inf)
@@ -196,6 +359,7 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
                             strict=True))}
         for i in range(len(costs))
     ]  # fmt: skip
-    return summarize(problem, zs[best], steps[best], CODES[int(codes[best])],
+    outcome = Outcome.interrupted if interrupted else CODES[int(codes[best])]
+    return summarize(problem, zs[best], steps[best], outcome,
                      f"{solver_name(solver)} x{len(costs)}", wall,
                      extra={"starts": table, "best_index": best})

@@ -21,6 +21,7 @@ from a residual function.
 from __future__ import annotations
 
 import abc
+import warnings
 from collections.abc import Callable, Sequence
 
 import equinox as eqx
@@ -33,9 +34,14 @@ from ..drive import Drive
 from ..model.jiles_atherton import JAVariant
 from ..model.simulate import DEFAULT_SUBSTEPS, PAPER_VARIANT, Simulation, simulate_unchecked
 from ..params import Bounds, Parameters, check_parameters
+from .measured import holds_loop, max_field_step, substeps_needed
 from .space import ParameterSpace, u_from_z
 
 MU0 = 4e-7 * np.pi  # vacuum permeability, H/m
+
+
+class SamplingWarning(UserWarning):
+    """The record is sampled too coarsely for the RK4 substeps asked for."""
 
 #: Observable outputs: name → (unit, function of a Simulation).
 OUTPUTS = {
@@ -205,24 +211,6 @@ class AbstractProblem(eqx.Module):
         return jnp.where(jnp.isfinite(cost), 1.0 / jnp.sqrt(c1 + cost), 0.0)
 
 
-def _sweeps_a_loop(H) -> bool:
-    """True if, after its first reversal, the field sweeps back over at least 90 % of its
-    observed range: a closed loop, whether it starts at a tip or mid-branch (a window
-    that merely turns round near a tip does not determine a loop)."""
-    H = np.asarray(H)
-    dH = np.diff(H)
-    moving = np.flatnonzero(dH != 0)
-    if moving.size == 0:
-        return False
-    s = np.sign(dH[moving])
-    turns = np.flatnonzero(s[1:] != s[:-1])
-    if turns.size == 0:
-        return False
-    r = moving[turns[0] + 1]  # sample index where the field turned
-    span = float(np.max(H) - np.min(H))
-    return float(np.max(np.abs(H[r:] - H[r]))) >= 0.9 * span
-
-
 class Problem(AbstractProblem):
     """Identify `Parameters` from one observed signal of one drive.
 
@@ -237,8 +225,12 @@ class Problem(AbstractProblem):
     - ``variant``, ``substeps``: model settings, as in `simulate`.
     - ``sigma``: the data's noise level (unit of ``output``) if known; ``priors``: a
       sequence of `GaussianPrior` (needs ``sigma``).
-    - ``require_full_period``: refuse data whose field does not rise and fall (less than
-      one period of a periodic drive), which cannot determine a hysteresis loop.
+    - ``require_full_period``: refuse data whose field holds no loop (the turning-point
+      rule of `jaxhyst.identify.measured`: noise reversals below 5 % of the range do not
+      count), which cannot determine a hysteresis loop.
+
+    Warns (`SamplingWarning`) when the field moves more than 1 % of its range per RK4
+    substep, where the documented accuracy no longer holds.
     """
 
     data: jax.Array
@@ -274,12 +266,20 @@ class Problem(AbstractProblem):
         if not np.all(np.isfinite(data)):
             bad = np.flatnonzero(~np.isfinite(data))[:5].tolist()
             raise ValueError(f"data contain NaN or inf at samples {bad}; remove or repair them.")
-        if require_full_period and not _sweeps_a_loop(drive.observed(drive.H)):
+        H_obs = np.asarray(drive.observed(drive.H))
+        if require_full_period and not holds_loop(H_obs):
             raise ValueError(
-                "The observed data cover less than one period of the drive: the field must "
-                "rise and fall within the observed window to determine a hysteresis loop. "
-                "Observe a whole period (or pass require_full_period=False)."
+                "The observed field holds no hysteresis loop: after its first turning point "
+                "(a reversal larger than 5 % of its range) it must sweep back over 90 % of "
+                "its range. Observe a whole period or loop (or pass "
+                "require_full_period=False)."
             )
+        need = substeps_needed(H_obs, int(substeps))
+        if need is not None:
+            warnings.warn(
+                f"the field moves up to {100 * max_field_step(H_obs):.2g} % of its range "
+                f"per sample: {int(substeps)} RK4 substeps lose the documented accuracy "
+                f"(≤ 1e-5); use substeps={need} or more.", SamplingWarning, stacklevel=2)
         big = np.flatnonzero(np.abs(data) > PLAUSIBLE[output])
         if big.size:
             i = int(big[0])

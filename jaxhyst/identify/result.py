@@ -12,6 +12,9 @@ import numpy as np
 
 from ..params import NAMES, UNITS
 
+#: Parameters only the structure sees (never printed for an M or B fit).
+STRUCTURAL = ("lambda_s", "E", "Kz", "Mz", "Cz")
+
 
 class Outcome(str, enum.Enum):
     """How an identification ended.
@@ -36,6 +39,44 @@ def _frozen(d):
     return MappingProxyType(dict(d or {}))
 
 
+#: A free value within this fraction of its box width from a bound is "at the bound" (an
+#: active constraint: the solvers stop at 1e-10 of the box on a bound optimum, so a value
+#: further inside is an interior optimum near the bound).
+BOUND_TOL = 1e-6
+#: A residual group whose rms error exceeds this fraction of max|data| is "far from its
+#: data"; a loop whose relative error is `OUTLIER_RATIO` times the others' median (and
+#: above `OUTLIER_FLOOR`) is "far above the others".
+FAR_FROM_DATA = 0.2
+OUTLIER_RATIO = 5.0
+OUTLIER_FLOOR = 0.05
+
+
+def _physical_limit(name: str, value: float) -> bool:
+    """True if ``value`` is where the parameter's physical range ends (c = 0 or 1; 0 for
+    the non-negative λs, E, Cz)."""
+    base = name.split("[")[0]
+    if base == "c":
+        return value in (0.0, 1.0)
+    return base in ("lambda_s", "E", "Cz") and value == 0.0
+
+
+def bound_status(values, lower, upper, tol: float = BOUND_TOL) -> dict:
+    """``{index: "lower" | "upper"}`` of the values within ``tol`` of their box width
+    from a bound (boxes of zero width excluded)."""
+    values, lower, upper = (np.asarray(x, dtype=float) for x in (values, lower, upper))
+    width = upper - lower
+    out = {}
+    for i in range(values.shape[0]):
+        if not width[i] > 0:
+            continue
+        u = (values[i] - lower[i]) / width[i]
+        if u <= tol:
+            out[i] = "lower"
+        elif u >= 1.0 - tol:
+            out[i] = "upper"
+    return out
+
+
 @dataclass(frozen=True)
 class IdentificationResult:
     """What an identification returns (plain Python/NumPy values, SI units; immutable —
@@ -55,6 +96,9 @@ class IdentificationResult:
       a multi-start table, a GA history, the convergence check).
     - ``report``: the `IdentifiabilityReport` at ``params`` (attached by `jaxhyst.solve`
       etc.), or None; ``report_error`` says why it is missing.
+    - ``at_bound``: ``{name: ("lower" | "upper", bound)}`` of the free values that ended
+      within 1e-6 of the box width from a bound (a constrained optimum);
+      ``far_from_data`` and ``warnings`` (properties) say what else needs attention.
     """
 
     params: object
@@ -73,9 +117,11 @@ class IdentificationResult:
     extra: MappingProxyType = field(default_factory=lambda: _frozen({}))
     report: object = None
     report_error: str | None = None
+    at_bound: MappingProxyType = field(default_factory=lambda: _frozen({}))
 
     def __post_init__(self):
         object.__setattr__(self, "outcome", Outcome(self.outcome))
+        object.__setattr__(self, "at_bound", _frozen(self.at_bound))
         object.__setattr__(self, "extra", _frozen(self.extra))
         object.__setattr__(self, "groups", _frozen(self.groups))
 
@@ -88,6 +134,47 @@ class IdentificationResult:
     def success(self) -> bool:
         """True only for a converged fit with a finite cost."""
         return self.outcome is Outcome.successful and bool(np.isfinite(self.cost))
+
+    @property
+    def far_from_data(self) -> tuple[str, ...]:
+        """Residual groups (loops) the fit is far from: rms error above `FAR_FROM_DATA`
+        of max|data|, or `OUTLIER_RATIO` times the other loops' median relative error
+        (above `OUTLIER_FLOOR`). Only for groups whose data size is known."""
+        rel = {k: g["rms"] / g["data_scale"] for k, g in self.groups.items()
+               if g.get("data_scale")}
+        out = []
+        for k, r in rel.items():
+            others = [v for j, v in rel.items() if j != k]
+            if not np.isfinite(r) or r > FAR_FROM_DATA or (
+                    others and r > OUTLIER_FLOOR and r > OUTLIER_RATIO * np.median(others)):
+                out.append(k)
+        return tuple(out)
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """What a user must know before trusting the fit, one line each: a stopped-short
+        or failed outcome, loops far from their data, parameters at a bound."""
+        out = []
+        if self.outcome is Outcome.max_steps_reached:
+            out.append("the fit stopped at its step limit before converging: allow more "
+                       "steps, or start again from this result")
+        elif self.outcome in (Outcome.nonfinite, Outcome.failed):
+            out.append(f"the fit failed ({self.result}): the cost is not a valid optimum")
+        for k in self.far_from_data:
+            g = self.groups[k]
+            out.append(f"{k}: rms error {g['rms']:.3g} {g['unit']} is "
+                       f"{100 * g['rms'] / g['data_scale']:.0f} % of max|data| "
+                       f"({g['data_scale']:.3g} {g['unit']}): the fit is far from these data")
+        for n, (side, bound) in self.at_bound.items():
+            if _physical_limit(n, bound):
+                out.append(f"{n} ended at its physical limit {n} = {bound:g}: the data want "
+                           "a value the model does not allow (another JA form, --variant, "
+                           "may describe them better)")
+            else:
+                out.append(f"{n} ended at its {side} bound {bound:g}: the optimum is "
+                           "constrained there; widen the bound if a value beyond it is "
+                           "physical")
+        return tuple(out)
 
     @property
     def objective(self) -> float | None:
@@ -135,6 +222,10 @@ class IdentificationResult:
             "sse": self.sse, "groups": {k: dict(v) for k, v in self.groups.items()},
             "identifiability": None if self.report is None else self.report.to_dict(),
             "identifiability_error": self.report_error,
+            "at_bound": {n: {"bound": side, "value": b}
+                         for n, (side, b) in self.at_bound.items()},
+            "far_from_data": list(self.far_from_data),
+            "warnings": list(self.warnings),
         }  # fmt: skip
 
     def __str__(self) -> str:
@@ -154,9 +245,14 @@ class IdentificationResult:
             for name, g in self.groups.items():
                 lines.append(f"    {name}: rms {g['rms']:.3e} {g['unit']}, "
                              f"max {g['max_abs']:.3e} {g['unit']}")
+        magnetic_only = self.output in ("magnetization", "flux_density")
         if self._is_parameters():
             for n in NAMES:
+                if magnetic_only and n in STRUCTURAL and not self._is_free(n):
+                    continue  # cannot affect M or B: not printed
                 mark = "" if self._is_free(n) else "  (fixed)"
+                if n in self.at_bound:
+                    mark += f"  AT {self.at_bound[n][0].upper()} BOUND"
                 v = self._value(n)
                 if isinstance(v, list):
                     shared = n in self.free or not self._is_free(n)
@@ -172,4 +268,5 @@ class IdentificationResult:
             lines.append(str(self.report))
         elif self.report_error:
             lines.append(f"Identifiability: not available ({self.report_error})")
+        lines += [f"  WARNING: {w}" for w in self.warnings]
         return "\n".join(lines)

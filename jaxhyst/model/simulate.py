@@ -24,13 +24,13 @@ import numpy as np
 
 from ..actuator import Actuator
 from ..drive import Drive
+from ..names import DEFAULT_SUBSTEPS
 from ..params import Parameters, check_parameters
 from .jiles_atherton import EnergyBasedJA, JAVariant, anhysteretic
 from .magnetization import magnetization_path
 from .magnetostriction import magnetostriction
 from .structure import hermite_taylor_coefficients, structural_response
 
-DEFAULT_SUBSTEPS = 2
 PAPER_VARIANT = EnergyBasedJA()  # immutable Module: a safe shared default
 
 

@@ -1,0 +1,238 @@
+"""Nothing wrong accepted (issue 16): one table of malformed inputs through the command
+line and the Python API, each with its exit status and one-line message; property-based
+tests (hypothesis) of the reader and of `simulate` on random valid inputs."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import jaxhyst as jh
+from jaxhyst.cli import main
+from jaxhyst.io import DataError, read_json, read_loops
+
+# -- one table of malformed inputs ----------------------------------------------------------
+
+
+def _files(d):
+    """Files for the table: a valid B–H loop, and broken variants of every input file."""
+    H = 100 * np.cos(2 * np.pi * np.arange(200) / 200)
+    B = 0.3 * np.tanh((H + 10 * np.sign(np.gradient(-H))) / 30)
+    ok = d / "loop.csv"
+    ok.write_text("H [A/m],B [T]\n" + "".join(f"{h},{b}\n" for h, b in zip(H, B,
+                                                                              strict=True)))
+    files = {"ok": ok}
+    for name, content in {
+        "binary": b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xb6\xff",
+        "empty": b"",
+        "nan": b"H,B\n" + b"".join(b"1,2\n" for _ in range(9)) + b"nan,1\n",
+        "half": b"H,B\n" + b"".join(f"{h},{0.001 * h}\n".encode() for h in H[:40]),
+        "ragged": b"H,B\n1,2\n3\n",
+        "nosignal": b"H,t\n" + b"".join(f"{i},{i}\n".encode() for i in range(10)),
+        "huge": b"H,B\n" + b"".join(f"{h},{b}\n".encode() for h, b in zip(H, B,
+                                                                          strict=True))
+                + b"1,1e300\n",
+        "params_list": b"[1, 2, 3]",
+        "params_text": b"Ms = 7e5",
+        "params_bad": json.dumps({"Ms": -1.0}).encode(),
+        "bounds_swapped": json.dumps({"k": [40, 20]}).encode(),
+        "bounds_unknown": json.dumps({"kk": [1, 2]}).encode(),
+        "bounds_short": json.dumps({"k": [1]}).encode(),
+        "checkpoint_text": b"not a checkpoint",
+    }.items():
+        f = d / name
+        f.write_bytes(content)
+        files[name] = f
+    (d / "adir").mkdir()
+    files["dir"] = d / "adir"
+    return files
+
+
+CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
+    (["identify", "{binary}"], 2, "is not text"),
+    (["identify", "{dir}"], 2, "is a directory"),
+    (["identify", "{empty}"], 2, "is empty"),
+    (["identify", "{nan}"], 2, "is not a finite number"),
+    (["identify", "{ragged}"], 2, "1 values for 2 columns"),
+    (["identify", "{nosignal}"], 2, "signal columns []"),
+    (["identify", "{half}"], 2, "holds no hysteresis loop"),
+    (["identify", "{huge}"], 2, "beyond any flux_density"),
+    (["identify", "{ok}", "--bounds", "{bounds_swapped}"], 2, "lower <= upper"),
+    (["identify", "{ok}", "--bounds", "{bounds_unknown}"], 2, "unknown parameters ['kk']"),
+    (["identify", "{ok}", "--bounds", "{bounds_short}"], 2, "k must be [lower, upper]"),
+    (["identify", "{ok}", "--fix", "a=-5"], 2, "a must be > 0"),
+    (["identify", "{ok}", "--fix", "c=nan"], 2, "not finite"),
+    (["identify", "{ok}", "--fix", "Mass=1"], 2, "unknown parameter"),
+    (["identify", "{ok}", "--fix", "c", "--params", "{params_list}"], 2,
+     "expected a JSON object"),
+    (["identify", "{ok}", "--fix", "c", "--params", "{params_text}"], 2, "not valid JSON"),
+    (["identify", "{ok}", "--start", "{params_bad}"], 2, "need the ten names"),
+    (["identify", "{ok}", "--start", "{missing}"], 2, "does not exist"),
+    (["identify", "{ok}", "--method", "GATR1", "--start", "{ok}"], 2,
+     "--start applies to the local solvers"),
+    (["identify", "{ok}", "--method", "lm", "--checkpoint", "{checkpoint_text}"], 2,
+     "apply to the hybrid GAs"),
+    (["identify", "{ok}", "--seed", "-1"], 2, "--seed"),
+    (["identify", "{ok}", "--starts", "0"], 2, "--starts"),
+    (["identify", "{ok}", "--substeps", "1.5"], 2, "--substeps"),
+    (["identify", "{ok}", "--out", "{ok}/r.json"], 2, "cannot write in"),
+    (["identify", "{ok}", "--out", "{dir}"], 2, "is a directory; give a file name"),
+    (["identify", "{ok}", "--per-loop", "c"], 2, "--per-loop needs --joint"),
+    (["simulate", "--amplitude", "inf"], 2, "--amplitude"),
+    (["simulate", "--field-amplitude", "1e300"], 2, "beyond 1e+09 A/m"),
+    (["simulate", "--params", "{params_bad}"], 2, "need the ten names"),
+    (["simulate", "--frequency", "0"], 2, "--frequency"),
+    (["report", "{ok}"], 2, "not valid JSON"),
+    (["report", "{params_list}"], 2, "expected a JSON object"),
+    (["reproduce", "table4"], 2, "invalid choice"),
+]
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    return _files(tmp_path_factory.mktemp("malformed"))
+
+
+@pytest.mark.parametrize("argv,status,fragment", CLI_TABLE,
+                         ids=[" ".join(c[0])[:60] for c in CLI_TABLE])
+def test_malformed_command_line_inputs(files, argv, status, fragment, capsys):
+    names = {k: str(v) for k, v in files.items()}
+    names["missing"] = str(files["ok"].parent / "missing.json")
+    argv = [a.format(**names) for a in argv]
+    assert main(argv) == status, argv
+    cap = capsys.readouterr()
+    err = cap.err.strip()
+    assert "Traceback" not in err and err.count("\n") == 0, err
+    assert fragment in err, (argv, err)
+
+
+def _api_table(files):
+    H = 100 * np.cos(2 * np.pi * np.arange(200) / 200)
+    B = 1e-3 * H
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=50)
+    bad = jh.TABLE1_TRUE.to_dict()
+    return [  # (call, exception type, fragment)
+        (lambda: read_loops(files["binary"]), DataError, "is not text"),
+        (lambda: read_loops(files["dir"]), DataError, "is a directory"),
+        (lambda: read_json(files["params_list"]), DataError, "expected a JSON object"),
+        (lambda: jh.loop_problem(H[:40], B[:40]), ValueError, "holds no hysteresis loop"),
+        (lambda: jh.loop_problem(H, B[:-1]), ValueError, "equal length"),
+        (lambda: jh.loop_problem(H, B, {"kk": (1, 2)}), ValueError, "unknown parameters"),
+        (lambda: jh.loop_problem(H, B, output="displacement"), ValueError,
+         "magnetization or flux_density"),
+        (lambda: jh.loop_problem(H, np.where(H > 0, np.nan, B)), ValueError, "NaN or inf"),
+        (lambda: jh.simulate(jh.Parameters.from_dict({**bad, "c": 2.0}), jh.ACTUATOR1,
+                             drive), ValueError, "c = 2.0 must lie in [0, 1]"),
+        (lambda: jh.sinusoidal_current(100.0, float("nan"), 1.53, jh.ACTUATOR1), ValueError,
+         "finite number"),
+        (lambda: jh.sinusoidal_field(100.0, 1e300), ValueError, "beyond 1e+09 A/m"),
+        (lambda: jh.Bounds.from_dict({**{n: (1.0, 2.0) for n in jh.NAMES}, "k": (3.0, 1.0)}),
+         ValueError, "lower > upper"),
+    ]
+
+
+def test_malformed_python_api_inputs(files):
+    for i, (call, exc, fragment) in enumerate(_api_table(files)):
+        with pytest.raises(exc) as info:
+            call()
+        msg = str(info.value)
+        assert fragment in msg and "\n" not in msg, (i, msg)
+
+
+# -- property-based tests -------------------------------------------------------------------
+
+QUANTITY_UNITS = {  # quantity → [(unit as written, factor to SI)], value range in SI
+    "H": ([("A/m", 1.0), ("kA/m", 1e3), ("Oe", 1e3 / (4 * np.pi))], 1e5),
+    "B": ([("T", 1.0), ("mT", 1e-3)], 2.0),
+    "y": ([("m", 1.0), ("um", 1e-6), ("mm", 1e-3)], 1e-4),
+    "M": ([("A/m", 1.0), ("kA/m", 1e3)], 1e6),
+}
+
+
+@st.composite
+def tables(draw):
+    n = draw(st.integers(8, 30))
+    cols = ["H", *draw(st.lists(st.sampled_from(["B", "y", "M"]), min_size=1, max_size=3,
+                                unique=True))]
+    with_t = draw(st.booleans())
+    header, data = [], {}
+    if with_t:
+        dt = draw(st.lists(st.floats(1e-6, 1e-2), min_size=n, max_size=n))
+        data["t"] = (np.cumsum(dt), 1.0)
+        header.append("t [s]")
+    for q in cols:
+        units, size = QUANTITY_UNITS[q]
+        unit, factor = draw(st.sampled_from(units))
+        style = draw(st.sampled_from(["{q} [{u}]", "{q} ({u})"]))
+        vals = draw(st.lists(st.floats(-size, size, allow_nan=False), min_size=n,
+                             max_size=n))
+        data[q] = (np.asarray(vals) / factor, factor)  # the file holds them in `unit`
+        header.append(style.format(q=q, u=unit))
+    delim = draw(st.sampled_from([",", "\t", ";"]))
+    return header, data, delim
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(tables())
+def test_reader_reads_any_valid_table_exactly(table):
+    header, data, delim = table
+    names = list(data)
+    rows = zip(*(data[q][0] for q in names), strict=True)
+    text = delim.join(header) + "\n" + "".join(delim.join(repr(float(v)) for v in r) + "\n"
+                                               for r in rows)
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, "t.csv")
+        with open(path, "w") as fh:
+            fh.write(text)
+        (loop,) = read_loops(path)
+    for q in names:
+        values, factor = data[q]
+        got = {"t": loop.t, "H": loop.H}.get(q, loop.signals.get(q))
+        assert got is not None and np.all(np.isfinite(got))
+        np.testing.assert_allclose(got, values * factor, rtol=1e-12, atol=0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.one_of(st.binary(max_size=300), st.text(max_size=300)))
+def test_reader_never_fails_other_than_with_a_data_error(content):
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, "x.csv")
+        with open(path, "wb") as fh:
+            fh.write(content.encode("utf-8", "surrogatepass") if isinstance(content, str)
+                     else content)
+        try:
+            loops = read_loops(path)
+        except DataError as err:
+            assert "\n" not in str(err)
+            return
+    for lp in loops:  # whatever it accepted is finite and of the promised size
+        assert lp.n_samples >= 8
+        for a in (lp.t, lp.H, lp.I, *lp.signals.values()):
+            assert a is None or np.all(np.isfinite(a))
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scale=st.lists(st.floats(0.5, 2.0), min_size=10, max_size=10),
+       c=st.floats(0.0, 1.0), alpha=st.floats(-0.05, 0.0),
+       frequency=st.floats(1.0, 2000.0), amplitude=st.floats(0.0, 2.0),
+       offset=st.floats(-2.0, 2.0))
+def test_simulate_on_random_valid_inputs_is_finite_or_says_it_diverged(
+        scale, c, alpha, frequency, amplitude, offset):
+    x = np.asarray(jh.TABLE1_TRUE.to_array()) * np.asarray(scale)
+    p = jh.Parameters.from_dict({**dict(zip(jh.NAMES, x.tolist(), strict=True)),
+                                 "c": c, "alpha": alpha})
+    drive = jh.sinusoidal_current(frequency, amplitude, offset, jh.ACTUATOR1,
+                                  samples_per_period=40)
+    try:
+        sim = jh.simulate(p, jh.ACTUATOR1, drive)
+    except FloatingPointError as err:  # the checked alternative to a silent NaN
+        assert "\n" not in str(err)
+        return
+    for name in ("M", "Man", "lam", "y", "strain"):
+        assert np.all(np.isfinite(np.asarray(getattr(sim, name)))), name

@@ -1,0 +1,156 @@
+"""Measured loops as they come (issue 15): turning points of noisy records, data-derived
+bounds, digitized loops identified without options, parameters at a bound, loud
+warnings for fits that stop short or end far from their data, coarse sampling."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import jaxhyst as jh
+from jaxhyst.identify.joint import NO_ACTUATOR
+from jaxhyst.identify.measured import (
+    default_loop_bounds,
+    holds_loop,
+    loop_features,
+    merge_bounds,
+    monotone_branches,
+    turning_points,
+)
+from jaxhyst.identify.problem import SamplingWarning
+from jaxhyst.identify.result import IdentificationResult
+
+MU0 = 4e-7 * np.pi
+#: A ferrite-like material (Ms, a, k of a soft MnZn ferrite; c mid-range).
+FERRITE = jh.Parameters(Ms=3.2e5, lambda_s=0.0, a=14.0, k=11.0, alpha=1.2e-5, c=0.6,
+                        E=3e10, Kz=3e7, Mz=0.5, Cz=0.0)
+
+
+def _clean_loop(n=600, amplitude=100.0):
+    H = amplitude * np.cos(2 * np.pi * np.arange(n + 1) / n)
+    drive = jh.drive_from_record(None, H)
+    M = jh.simulate(FERRITE, NO_ACTUATOR, drive, substeps=16).M
+    return H[:-1], np.asarray(drive.observed(MU0 * (drive.H + M)))[:-1]
+
+
+def _digitized(seed=1, n=600, h_noise=0.001, b_noise=0.003):
+    """The clean loop as a digitizer gives it: starting a third of the way round (mid
+    branch), noise on H (non-monotonic within branches) and on B (fractions of the
+    ranges)."""
+    H, B = _clean_loop(n)
+    rng = np.random.default_rng(seed)
+    H, B = np.roll(H, -n // 3), np.roll(B, -n // 3)
+    return (H + h_noise * np.ptp(H) * rng.normal(size=n),
+            B + b_noise * np.ptp(B) * rng.normal(size=n))
+
+
+def test_turning_points_ignore_noise_and_find_every_reversal():
+    rng = np.random.default_rng(0)
+    x = np.linspace(0.3, 4 * np.pi + 0.3, 800)
+    H = np.sin(x) + 0.01 * rng.normal(size=x.size)  # ~100 noise reversals
+    assert np.sum(np.diff(np.sign(np.diff(H))) != 0) > 100
+    turns = turning_points(H)
+    want = [np.argmin(np.abs(x - t)) for t in (np.pi / 2, 3 * np.pi / 2, 5 * np.pi / 2,
+                                                7 * np.pi / 2)]
+    assert len(turns) == 4
+    assert np.all(np.abs(turns - want) < 25)  # within the noise of the flat tips
+    assert holds_loop(H) and not holds_loop(H[:120])  # up, then only a little way down
+    assert turning_points(np.linspace(0, 1, 50)).size == 0 and not holds_loop(np.ones(9))
+    m = monotone_branches(H)
+    edges = [0, *turns, H.size - 1]
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        d = np.diff(m[a:b + 1])
+        assert np.all(d >= -1e-12) or np.all(d <= 1e-12)
+    assert np.max(np.abs(m - H)) < 0.05  # a small correction of the noise only
+
+
+def test_a_noisy_loop_starting_mid_branch_is_accepted():
+    """The rule of the old check took the first noise wiggle as the turning point and
+    refused this record; a half loop is still refused, with the rule in the message."""
+    H, B = _digitized()
+    problem = jh.loop_problem(H, B)  # no options
+    assert problem.space.names == ("Ms", "a", "k", "alpha", "c")
+    with pytest.raises(ValueError, match="holds no hysteresis loop"):
+        jh.loop_problem(H[:120], B[:120])
+
+
+def test_default_bounds_follow_the_data_and_a_bounds_dict_changes_only_its_names():
+    H, B = _clean_loop()
+    f = loop_features(H, B / MU0 - H)
+    assert f.Hmax == pytest.approx(100.0)
+    assert 0.2 * FERRITE.k < f.Hc < FERRITE.k and 0 < f.Mr < f.Mmax < FERRITE.Ms
+    box = default_loop_bounds(f)
+    for n in ("Ms", "a", "k", "alpha", "c"):
+        lo, hi = getattr(box.lower, n), getattr(box.upper, n)
+        assert lo < getattr(FERRITE, n) < hi, n
+    changed = merge_bounds(box, {"k": (1.0, 2.0)})
+    assert (changed.lower.k, changed.upper.k) == (1.0, 2.0)
+    assert changed.lower.a == box.lower.a
+    with pytest.raises(ValueError, match="unknown parameters"):
+        merge_bounds(box, {"kk": (1.0, 2.0)})
+
+
+def test_digitized_loops_are_identified_without_options_within_their_intervals():
+    """Must-show of issue 15: a synthetic ferrite-like loop, noisy and resampled like a
+    digitized curve, fitted with every default (data-derived box, 2 substeps, monotone
+    field), for five noise realizations: every fit converges with no parameter on a
+    bound, the truth lies within the 95 % interval in at least 80 % of the 25 cases
+    (measured: 84 %; the noise on H biases slightly) and always within 4 standard errors.
+    Then a box that excludes the truth puts k on its bound, which the result and the
+    report treat as an active constraint."""
+    z = []
+    for seed in range(5):
+        H, B = _digitized(seed)
+        problem = jh.loop_problem(H, B)
+        starts = np.random.default_rng(0).uniform(0, 1, (8, problem.space.n_free))
+        res = jh.multistart(problem, starts, solver="lm")
+        assert res.success and not res.at_bound and not res.warnings, res
+        rep = res.report
+        assert rep.rank == 5 and not rep.null_directions
+        z += [(v - float(getattr(FERRITE, n))) / rep.std_errors[n]
+              for n, v in zip(res.free, res.values, strict=True)]
+    z = np.abs(z)
+    assert np.mean(z < 1.96) >= 0.8 and np.max(z) < 4, z
+    # k's box above the truth: k ends on its lower bound
+    boxed = jh.loop_problem(H, B, {"k": (12.5, 40.0)})
+    res_b = jh.solve(boxed, res.params, solver="lm")
+    assert res_b.at_bound == {"k": ("lower", 12.5)}
+    assert any("k ended at its lower bound" in w for w in res_b.warnings)
+    rep_b = res_b.report
+    assert rep_b.at_bound["k"][0] == "lower" and rep_b.std_errors["k"] is None
+    assert not rep_b.null_directions and rep_b.rank == 4  # not a null direction
+    assert "k" not in rep_b.suggest_fixed()
+    assert all(np.isfinite(c["value"]) and np.isfinite(c["std_error"])
+               for c in rep_b.combinations)
+    assert "AT ITS LOWER BOUND" in str(rep_b)
+
+
+def test_coarse_records_warn_with_the_substeps_they_need():
+    H = 100 * np.cos(2 * np.pi * np.arange(20) / 20)  # 20 samples per loop
+    with pytest.warns(SamplingWarning, match="use substeps=16"):
+        jh.loop_problem(H, 1e-3 * H)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        jh.loop_problem(H, 1e-3 * H, substeps=16)
+
+
+def _result(outcome="successful", groups=None, at_bound=None):
+    return IdentificationResult(params=None, free=("a",), values=(1.0,), cost=1.0,
+                                outcome=outcome, steps=3, solver="lm", wall_time=0.1,
+                                groups=groups or {}, at_bound=at_bound or {})
+
+
+def test_warnings_name_a_stopped_short_fit_a_loop_far_from_its_data_and_a_bound():
+    ok = {"rms": 0.01, "unit": "T", "data_scale": 1.0}
+    assert _result(groups={"loop 0": ok, "loop 1": ok}).warnings == ()
+    flat = {"rms": 0.66, "unit": "T", "data_scale": 1.2}
+    r = _result("max_steps_reached", {"loop 0": ok, "loop 1": flat})
+    assert r.far_from_data == ("loop 1",) and not r.success
+    assert "step limit" in r.warnings[0] and "loop 1: rms error 0.66 T is 55 %" in r.warnings[1]
+    # a loop 8× worse than the others (though below 20 % of its size) stands out
+    worse = {"rms": 0.08, "unit": "T", "data_scale": 1.0}
+    assert _result(groups={"0": ok, "1": ok, "2": worse}).far_from_data == ("2",)
+    assert "physical limit c = 1" in _result(at_bound={"c": ("upper", 1.0)}).warnings[0]
+    assert "widen" in _result(at_bound={"Ms": ("upper", 2e6)}).warnings[0]
