@@ -183,7 +183,8 @@ class IdentifiabilityReport:
     def combination(self, exponents: dict) -> dict:
         """Value, standard error and 95 % interval of Π θ^p for ``exponents`` {name: p}
         (e.g. ``{"alpha": 1, "Ms": 1}`` for α·Ms); ``identifiable`` False (and no error)
-        when the product changes along a null direction."""
+        when the product changes along a null direction or involves a parameter at a
+        bound (then listed in ``at_bound``)."""
         unknown = [n for n in exponents if n not in self.names]
         if unknown:
             raise ValueError(f"{unknown} are not free parameters of this report "
@@ -191,6 +192,11 @@ class IdentifiabilityReport:
         p = np.array([float(exponents.get(n, 0.0)) for n in self.names])
         value = _signed_power(self.values, p)
         text = _power_text({n: exponents[n] for n in self.names if exponents.get(n, 0)})
+        held = sorted(n for n in (self.at_bound or {}) if exponents.get(n, 0))
+        if held:  # a bound holds part of it: no interval from the unconstrained analysis
+            return {"exponents": dict(exponents), "text": text, "value": value,
+                    "identifiable": False, "std_error": None, "interval": None,
+                    "at_bound": held}
         ok = self.null_space.size == 0 or (
             np.linalg.norm(self.null_space @ p) <= 1e-6 * max(np.linalg.norm(p), 1e-300))
         if not ok:
