@@ -85,9 +85,9 @@ def scipy_fit(problem, seed):
 
     n = problem.space.n_free
     t0 = time.perf_counter()
-    cost_batch = jax.jit(jax.vmap(problem.cost_u))
-    fun = jax.jit(problem.residuals)
-    jac = jax.jit(jax.jacfwd(problem.residuals))
+    cost_batch = jax.jit(jax.vmap(lambda u: problem.cost_u(u)))
+    fun = jax.jit(lambda z: problem.residuals(z))
+    jac = jax.jit(jax.jacfwd(lambda z: problem.residuals(z)))
     cost_batch(jnp.full((15 * n, n), 0.5)).block_until_ready()
     fun(jnp.zeros(n)).block_until_ready()
     jac(jnp.zeros(n)).block_until_ready()
