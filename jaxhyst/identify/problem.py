@@ -43,6 +43,18 @@ MU0 = 4e-7 * np.pi  # vacuum permeability, H/m
 class SamplingWarning(UserWarning):
     """The record is sampled too coarsely for the RK4 substeps asked for."""
 
+
+def _caller_level() -> int:
+    """The ``stacklevel`` that points a warning raised in this module at the first frame
+    outside jaxhyst and equinox (the user's line that built the problem)."""
+    import inspect
+
+    frame, level = inspect.currentframe().f_back, 1  # the function that warns
+    while frame is not None and frame.f_globals.get("__name__", "").split(".")[0] in (
+            "jaxhyst", "equinox"):
+        frame, level = frame.f_back, level + 1
+    return level
+
 #: Observable outputs: name → (unit, function of a Simulation).
 OUTPUTS = {
     "displacement": ("m", lambda sim: sim.y),
@@ -279,7 +291,8 @@ class Problem(AbstractProblem):
             warnings.warn(
                 f"the field moves up to {100 * max_field_step(H_obs):.2g} % of its range "
                 f"per sample: {int(substeps)} RK4 substeps lose the documented accuracy "
-                f"(≤ 1e-5); use substeps={need} or more.", SamplingWarning, stacklevel=2)
+                f"(≤ 1e-5); use substeps={need} or more.", SamplingWarning,
+                stacklevel=_caller_level())
         big = np.flatnonzero(np.abs(data) > PLAUSIBLE[output])
         if big.size:
             i = int(big[0])
