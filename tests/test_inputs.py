@@ -170,8 +170,9 @@ def tables(draw):
         units, size = QUANTITY_UNITS[q]
         unit, factor = draw(st.sampled_from(units))
         style = draw(st.sampled_from(["{q} [{u}]", "{q} ({u})"]))
-        vals = draw(st.lists(st.floats(-size, size, allow_nan=False), min_size=n,
-                             max_size=n))
+        value = st.floats(-size, size, allow_nan=False).filter(
+            lambda v: v == 0 or abs(v) > 1e-200)  # (a unit factor must not underflow it)
+        vals = draw(st.lists(value, min_size=n, max_size=n))
         data[q] = (np.asarray(vals) / factor, factor)  # the file holds them in `unit`
         header.append(style.format(q=q, u=unit))
     delim = draw(st.sampled_from([",", "\t", ";"]))
