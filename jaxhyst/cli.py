@@ -156,17 +156,17 @@ def _bounds(spec: str | None):
     return bounds_changes_from_json(read_json(spec), f"--bounds {spec}")
 
 
-def _resolve_bounds(spec: dict, given):
+def _resolve_bounds(spec: dict, given, loops):
     """The full box of a fit (and a line saying where it came from): for M or B data the
-    box derived from the loops, else the paper's Table 1 box; a bounds file's entries
-    replace the defaults for the parameters it names; a preset is used as is."""
+    box derived from the ``loops`` read from ``spec["data"]``, else the paper's Table 1
+    box; a bounds file's entries replace the defaults for the parameters it names; a
+    preset is used as is."""
     import jaxhyst as jh
     from jaxhyst.identify.measured import loop_bounds, merge_bounds
-    from jaxhyst.io import SIGNAL_OUTPUTS, read_loops
+    from jaxhyst.io import SIGNAL_OUTPUTS
 
     if isinstance(given, jh.Bounds):
         return given, None
-    loops = read_loops(spec["data"], spec.get("columns"))
     if not spec.get("joint") and spec.get("loop") is not None:
         loops = [lp for lp in loops if lp.index == spec["loop"]] or loops
     out = _loop_signal(spec, loops[0], spec.get("output"))
@@ -245,14 +245,11 @@ def _simulate(args) -> int:
     params = _params(args.params or args.preset)
     actuator = _actuator(args.actuator)
     drive, what = _drive_from_args(args, actuator)
-    from jaxhyst.identify.measured import max_field_step, substeps_needed
+    from jaxhyst.identify.measured import coarse_sampling
 
-    H_obs = drive.observed(drive.H)
-    need = substeps_needed(H_obs, args.substeps)
-    if need is not None:
-        _warn(args, f"the field moves up to {100 * max_field_step(H_obs):.2g} % of its range "
-              f"per sample: {args.substeps} RK4 substeps lose the documented accuracy "
-              f"(≤ 1e-5); use --substeps {need} or more.")
+    coarse = coarse_sampling(drive.observed(drive.H), args.substeps, fix="--substeps {}")
+    if coarse is not None:
+        _warn(args, coarse)
     sim = jh.simulate(params, actuator, drive, variant=variant_from_name(args.variant),
                       substeps=args.substeps)
     y = sim.observed("y")
@@ -320,14 +317,16 @@ def _loop_drive(spec, loop, out, actuator):
     return jh.drive_from_record(loop.t, H, run_in_periods=spec.get("run_in_periods", 1))
 
 
-def build_problem(spec: dict):
+def build_problem(spec: dict, loops=None):
     """A `Problem` (or `JointProblem` when ``spec["joint"]``) from the JSON-able ``spec``
-    stored with every CLI result (so that ``jaxhyst report`` can rebuild it)."""
+    stored with every CLI result (so that ``jaxhyst report`` can rebuild it); ``loops``:
+    the loops of ``spec["data"]`` if already read."""
     import jaxhyst as jh
     from jaxhyst.identify.joint import fix_structural
     from jaxhyst.io import SIGNAL_OUTPUTS, bounds_from_json, read_loops
 
-    loops = read_loops(spec["data"], spec.get("columns"))
+    if loops is None:
+        loops = read_loops(spec["data"], spec.get("columns"))
     ids = [lp.index for lp in loops]
     bounds = bounds_from_json(spec["bounds"])
     actuator = jh.Actuator(**spec["actuator"])
@@ -365,18 +364,6 @@ def _warn(args, text: str) -> None:
     print(f"jaxhyst {args.command}: warning: {text}", file=sys.stderr, flush=True)
 
 
-def _build_with_warnings(args, spec):
-    """`build_problem`, its Python warnings (coarse sampling) as one line each."""
-    import warnings
-
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        problem = build_problem(spec)
-    for w in caught:
-        _warn(args, " ".join(str(w.message).split()))
-    return problem
-
-
 def _method(args, problem) -> str:
     """--method auto: GATR1 (the paper) for actuator outputs, multi-start LM for M/B."""
     if args.method != "auto":
@@ -412,7 +399,7 @@ def _identify(args) -> int:
 
     import jaxhyst as jh
     from jaxhyst._interrupt import stop_requested
-    from jaxhyst.io import bounds_to_json, write_json
+    from jaxhyst.io import bounds_to_json, read_loops, write_json
 
     _check_outputs(args)
     known = _params(args.params) if args.params else None
@@ -429,22 +416,19 @@ def _identify(args) -> int:
     if args.method in HYBRID and args.start:
         raise CLIError("--start applies to the local solvers (e.g. --method lm); a hybrid GA "
                        "searches the whole box.")
-    if args.method not in HYBRID and args.method != "auto" and (args.checkpoint or
-                                                                 args.resume):
-        raise CLIError("--checkpoint/--resume apply to the hybrid GAs; a local solve is not "
-                       "checkpointed (it is short: rerun it).")
     start = _read_start(args)
-    bounds, where = _resolve_bounds(spec, given)
+    loops = read_loops(spec["data"], spec["columns"])
+    bounds, where = _resolve_bounds(spec, given, loops)
     spec["bounds"] = bounds_to_json(bounds)
-    problem = _build_with_warnings(args, spec)
-    if where and args.progress:
-        print(f"[identify] {where}", file=sys.stderr, flush=True)
+    problem = build_problem(spec, loops)  # (its warnings: one line each, see main)
     method = _method(args, problem)
     if args.start and method in HYBRID:  # (only with --method auto) a start means a local solve
         method = "lm"
     if method not in HYBRID and (args.checkpoint or args.resume):
         raise CLIError(f"--checkpoint/--resume apply to the hybrid GAs; --method {method} is a "
                        "local solve (not checkpointed: rerun it).")
+    if where and args.progress:  # (after every check of the input: errors stay one line)
+        print(f"[identify] {where}", file=sys.stderr, flush=True)
     n = problem.space.n_free
     if method in HYBRID:
         settings = jh.GASettings()
@@ -479,7 +463,7 @@ def _identify(args) -> int:
     if "history" in result.extra:
         d["history"] = result.extra["history"]
     if args.png:
-        _identify_figure(args, problem, result)
+        _identify_figure(args, problem, result, has_t=loops[0].t is not None)
     if args.out:
         write_json(args.out, d)
     text = str(result) + (f"\n  wrote {args.out}" if args.out else "")
@@ -499,10 +483,9 @@ def _portable_path(path: str, out: str | None) -> str:
         return path
 
 
-def _identify_figure(args, problem, result) -> None:
+def _identify_figure(args, problem, result, has_t: bool) -> None:
     import numpy as np
 
-    from jaxhyst.io import read_loops
     from jaxhyst.plots import plot_fit, plot_history
 
     flags = (" — at bound: " + ", ".join(result.at_bound)) if result.at_bound else ""
@@ -515,7 +498,6 @@ def _identify_figure(args, problem, result) -> None:
                  [pred[i][mask[i]] for i in range(problem.n_loops)], problem.output, args.png,
                  title=f"{result.solver}: {problem.n_loops} loops fitted jointly{flags}")
         return
-    has_t = read_loops(args.data, args.columns)[0].t is not None
     pred = np.asarray(problem.predict(result.params))
     plot_fit(problem.drive.observed(problem.drive.H), problem.data, pred, problem.output,
              args.png, t=problem.drive.observed(problem.drive.t) if has_t else None,

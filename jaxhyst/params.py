@@ -28,6 +28,11 @@ import jax.numpy as jnp
 import numpy as np
 
 NAMES: tuple[str, ...] = ("Ms", "lambda_s", "a", "k", "alpha", "c", "E", "Kz", "Mz", "Cz")
+#: Parameters only the magnetostriction and the structure see: they cannot affect M or B.
+STRUCTURAL: tuple[str, ...] = ("lambda_s", "E", "Kz", "Mz", "Cz")
+#: Vacuum permeability, H/m (B = μ0·(H + M)).
+MU0 = 4e-7 * np.pi
+
 UNITS: dict[str, str] = {
     "Ms": "A/m",
     "lambda_s": "1",
@@ -136,6 +141,19 @@ PHYSICAL_RULES = {
     "Mz": (lambda v: v > 0, "must be > 0 (moving mass, kg)"),
     "Cz": (lambda v: v >= 0, "must be >= 0 (damping, N*s/m)"),
 }
+
+
+def at_physical_limit(name: str, value: float) -> bool:
+    """True if ``value`` is valid for ``name`` (`PHYSICAL_RULES`; a per-loop name such as
+    ``c[1]`` counts as ``c``) but a step outward is not: the end of its physical range
+    (c = 0 or 1, λs = E = Cz = 0)."""
+    base = name.split("[")[0]
+    if base not in PHYSICAL_RULES:
+        return False
+    ok = PHYSICAL_RULES[base][0]
+    v = np.float64(value)
+    step = 1e-12 * max(abs(float(v)), 1.0)
+    return bool(ok(v)) and not (bool(ok(v + step)) and bool(ok(v - step)))
 
 
 def check_value(name: str, value, what: str) -> float:

@@ -33,7 +33,7 @@ from ..actuator import Actuator
 from ..drive import Drive, drive_from_record
 from ..model.jiles_atherton import JAVariant
 from ..model.simulate import DEFAULT_SUBSTEPS, PAPER_VARIANT, simulate_unchecked
-from ..params import Bounds
+from ..params import STRUCTURAL, Bounds
 from ..sharding import batch_sharding, map_sharded
 from .problem import OUTPUTS, AbstractProblem, GaussianPrior, Problem, ResidualGroup
 from .space import JointSpace, ParameterSpace
@@ -41,9 +41,7 @@ from .space import JointSpace, ParameterSpace
 __all__ = ["JointProblem", "JointSpace", "NO_ACTUATOR", "STRUCTURAL", "fix_structural",
            "loop_problem"]
 
-#: Parameters that only the structure and magnetostriction see: irrelevant (and so fixed)
-#: when the observed output is M or B.
-STRUCTURAL = ("lambda_s", "E", "Kz", "Mz", "Cz")
+# STRUCTURAL (from params): irrelevant, and so fixed, when the observed output is M or B.
 #: The actuator of a magnetization-only problem (its geometry never enters M or B).
 NO_ACTUATOR = Actuator(Ar=1.0, lr=1.0, name="none (magnetization only)")
 

@@ -122,12 +122,17 @@ def _init_one(problem, solver, z0):
     return (z0, jnp.array(0), dynamic, term, result), static
 
 
+def _running(carry, max_steps):
+    """Whether a solve with ``carry`` = (y, steps, state, terminate, result) goes on."""
+    _, steps, _, term, result = carry
+    return (~term) & (result == optx.RESULTS.successful) & (steps < max_steps)
+
+
 def _advance_one(problem, solver, static, carry, n, max_steps):
     solver, fn, options = _objective(problem, solver)
 
     def cond(c):
-        _, steps, _, term, result, i = c
-        return (~term) & (result == optx.RESULTS.successful) & (steps < max_steps) & (i < n)
+        return _running(c[:5], max_steps) & (c[5] < n)
 
     def body(c):
         y, steps, dynamic, _, _, i = c
@@ -148,11 +153,6 @@ def _finish_one(problem, solver, static, carry):
                                 optx.RESULTS.nonlinear_max_steps_reached, result)
     y, _, _ = solver.postprocess(fn, y, None, None, options, state, _TAGS, result)
     return y, _code(result), steps, problem.cost(y), final_step_size(state)
-
-
-def _done(carry, max_steps) -> np.ndarray:
-    _, steps, _, term, result = carry
-    return np.asarray(term | (result != optx.RESULTS.successful) | (steps >= max_steps))
 
 
 @eqx.filter_jit
@@ -200,7 +200,7 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int,
     carry, static = _init_jit(problem, solver, z0s)
     interrupted, chunk, last = False, 1, t0
     with interruptible() as stop:
-        while not np.all(_done(carry, max_steps)):
+        while np.any(np.asarray(_running(carry, max_steps))):
             c0 = time.perf_counter()
             carry = _advance_jit(problem, solver, static, carry, jnp.asarray(chunk),
                                  jnp.asarray(max_steps))  # arrays: no recompile

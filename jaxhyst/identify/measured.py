@@ -25,9 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..params import NAMES, Bounds, Parameters
-
-MU0 = 4e-7 * np.pi
+from ..params import MU0, NAMES, Bounds, Parameters
 
 #: A reversal of the field counts as a turning point once it exceeds this fraction of the
 #: record's range (smaller ones are noise).
@@ -265,3 +263,15 @@ def loop_bounds(Hs, datas, output: str, bounds=None) -> Bounds:
     feats = [loop_features(H, magnetization_of(d, H, output))
              for H, d in zip(Hs, datas, strict=True)]
     return merge_bounds(default_loop_bounds(feats), dict(bounds or {}))
+
+
+def coarse_sampling(H, substeps: int, fix: str = "substeps={}") -> str | None:
+    """The warning for a record too coarse for ``substeps`` (`substeps_needed`), naming the
+    substeps needed in the form ``fix`` (``"--substeps {}"`` on the command line); else
+    ``None``."""
+    need = substeps_needed(H, substeps)
+    if need is None:
+        return None
+    return (f"the field moves up to {100 * max_field_step(H):.2g} % of its range per sample: "
+            f"{int(substeps)} RK4 substeps lose the documented accuracy (≤ 1e-5); use "
+            f"{fix.format(need)} or more.")

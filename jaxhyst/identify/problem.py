@@ -33,11 +33,9 @@ from ..actuator import Actuator
 from ..drive import Drive
 from ..model.jiles_atherton import JAVariant
 from ..model.simulate import DEFAULT_SUBSTEPS, PAPER_VARIANT, Simulation, simulate_unchecked
-from ..params import Bounds, Parameters, check_parameters
-from .measured import holds_loop, max_field_step, substeps_needed
+from ..params import MU0, Bounds, Parameters, check_parameters
+from .measured import coarse_sampling, holds_loop
 from .space import ParameterSpace, u_from_z
-
-MU0 = 4e-7 * np.pi  # vacuum permeability, H/m
 
 
 class SamplingWarning(UserWarning):
@@ -286,13 +284,9 @@ class Problem(AbstractProblem):
                 "its range. Observe a whole period or loop (or pass "
                 "require_full_period=False)."
             )
-        need = substeps_needed(H_obs, int(substeps))
-        if need is not None:
-            warnings.warn(
-                f"the field moves up to {100 * max_field_step(H_obs):.2g} % of its range "
-                f"per sample: {int(substeps)} RK4 substeps lose the documented accuracy "
-                f"(≤ 1e-5); use substeps={need} or more.", SamplingWarning,
-                stacklevel=_caller_level())
+        coarse = coarse_sampling(H_obs, int(substeps))
+        if coarse is not None:
+            warnings.warn(coarse, SamplingWarning, stacklevel=_caller_level())
         big = np.flatnonzero(np.abs(data) > PLAUSIBLE[output])
         if big.size:
             i = int(big[0])

@@ -10,10 +10,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from ..params import NAMES, UNITS
-
-#: Parameters only the structure sees (never printed for an M or B fit).
-STRUCTURAL = ("lambda_s", "E", "Kz", "Mz", "Cz")
+from ..params import NAMES, STRUCTURAL, UNITS, at_physical_limit
 
 
 class Outcome(str, enum.Enum):
@@ -49,15 +46,6 @@ BOUND_TOL = 1e-6
 FAR_FROM_DATA = 0.2
 OUTLIER_RATIO = 5.0
 OUTLIER_FLOOR = 0.05
-
-
-def _physical_limit(name: str, value: float) -> bool:
-    """True if ``value`` is where the parameter's physical range ends (c = 0 or 1; 0 for
-    the non-negative λs, E, Cz)."""
-    base = name.split("[")[0]
-    if base == "c":
-        return value in (0.0, 1.0)
-    return base in ("lambda_s", "E", "Cz") and value == 0.0
 
 
 def bound_status(values, lower, upper, tol: float = BOUND_TOL) -> dict:
@@ -166,7 +154,7 @@ class IdentificationResult:
                        f"{100 * g['rms'] / g['data_scale']:.0f} % of max|data| "
                        f"({g['data_scale']:.3g} {g['unit']}): the fit is far from these data")
         for n, (side, bound) in self.at_bound.items():
-            if _physical_limit(n, bound):
+            if at_physical_limit(n, bound):
                 out.append(f"{n} ended at its physical limit {n} = {bound:g}: the data want "
                            "a value the model does not allow (another JA form, --variant, "
                            "may describe them better)")
