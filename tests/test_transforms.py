@@ -169,6 +169,21 @@ def test_vmapped_time_loop_equals_single_runs():
             np.testing.assert_allclose(a[i], b, rtol=1e-13, atol=1e-9)
 
 
+def test_a_batch_of_one_runs_the_unbatched_loops_with_the_same_values():
+    # vmap over a single member (one start of a local solve) takes the unbatched programs
+    drive = _drive()
+    x = jh.TABLE1_TRUE.to_array()
+
+    def y(x):
+        return simulate_unchecked(jh.Parameters.from_array(x), jh.ACTUATOR1, drive).y
+
+    np.testing.assert_allclose(jax.jit(jax.vmap(y))(x[None])[0], jax.jit(y)(x),
+                               rtol=1e-14, atol=1e-20)
+    J1 = jax.jit(jax.vmap(jax.jacfwd(y)))(x[None])[0]
+    J = jax.jit(jax.jacfwd(y))(x)
+    np.testing.assert_allclose(J1, J, rtol=0, atol=1e-13 * float(jnp.max(jnp.abs(J))))
+
+
 def test_batched_parameters_given_to_simulate_are_refused_with_the_fix():
     batch = jh.Parameters.from_array(jnp.stack([jh.TABLE1_TRUE.to_array()] * 3))
     with pytest.raises(ValueError, match="simulate_batch"):
