@@ -260,10 +260,18 @@ def test_stepped_local_solve_iterates_like_optimistix_and_stops_when_interrupted
     z0 = start_z(problem, np.stack([_start(problem), np.full(10, 0.4)]))
     s = make_solver(solver)
     whole = eqx.filter_jit(jax.vmap(lambda z: run_local(problem, s, z, 8)))(z0)
-    (z, code, steps, cost, _), interrupted = stepped_solve(problem, s, z0, 8)
+    (z, code, steps, cost, _, residuals), interrupted = stepped_solve(problem, s, z0, 8)
     assert not interrupted and np.asarray(steps).tolist() == [8, 8]
     np.testing.assert_allclose(np.asarray(z), np.asarray(whole[0]), rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.asarray(cost), np.asarray(whole[3]), rtol=1e-9)
+    # the residuals returned with the end point are those of the end point
+    from jaxhyst.identify.local import _evaluate_at
+    for i in range(2):
+        _, at_end = _evaluate_at(problem, z[i])
+        for r, e in zip(residuals, at_end, strict=True):
+            e = np.asarray(e)
+            np.testing.assert_allclose(np.asarray(r[i]), e, rtol=0,
+                                       atol=1e-12 * np.max(np.abs(e)))
     assert np.asarray(code).tolist() == np.asarray(whole[1]).tolist()  # max steps
     with interruptible():
         _flag["stop"] = True  # as a Ctrl-C during the first chunk of steps

@@ -128,7 +128,7 @@ def _running(carry, max_steps):
     return (~term) & (result == optx.RESULTS.successful) & (steps < max_steps)
 
 
-def _advance_one(problem, solver, static, carry, n, max_steps):
+def _advance_one(problem, solver, static, carry, n, max_steps, with_cost):
     solver, fn, options = _objective(problem, solver)
 
     def cond(c):
@@ -142,7 +142,9 @@ def _advance_one(problem, solver, static, carry, n, max_steps):
         return (new_y, steps + 1, eqx.filter(new_state, eqx.is_array), term, result, i + 1)
 
     y, steps, dynamic, term, result, _ = jax.lax.while_loop(cond, body, (*carry, 0))
-    return y, steps, dynamic, term, result
+    # the cost for progress lines, in this program (a separate one would compile again)
+    cost = problem.cost(y) if with_cost else None
+    return (y, steps, dynamic, term, result), cost
 
 
 def _finish_one(problem, solver, static, carry):
@@ -152,7 +154,10 @@ def _finish_one(problem, solver, static, carry):
     result = optx.RESULTS.where((result == optx.RESULTS.successful) & ~term,
                                 optx.RESULTS.nonlinear_max_steps_reached, result)
     y, _, _ = solver.postprocess(fn, y, None, None, options, state, _TAGS, result)
-    return y, _code(result), steps, problem.cost(y), final_step_size(state)
+    # cost and group residuals at the end for `summarize`, in this program: a separate
+    # evaluation would compile the simulation once more
+    residuals = problem.group_residuals(problem.space.params_from_z(y))
+    return y, _code(result), steps, problem.cost(y), final_step_size(state), residuals
 
 
 @eqx.filter_jit
@@ -162,18 +167,14 @@ def _init_jit(problem, solver, z0s):
 
 
 @eqx.filter_jit
-def _advance_jit(problem, solver, static, carry, n, max_steps):
-    return jax.vmap(lambda c: _advance_one(problem, solver, static, c, n, max_steps))(carry)
+def _advance_jit(problem, solver, static, carry, n, max_steps, with_cost):
+    return jax.vmap(lambda c: _advance_one(problem, solver, static, c, n, max_steps,
+                                           with_cost))(carry)
 
 
 @eqx.filter_jit
 def _finish_jit(problem, solver, static, carry):
     return jax.vmap(lambda c: _finish_one(problem, solver, static, c))(carry)
-
-
-@eqx.filter_jit
-def _costs_jit(problem, zs):
-    return jax.vmap(problem.cost)(zs)
 
 
 def _say(label, text, live=False):
@@ -187,8 +188,8 @@ def _say(label, text, live=False):
 def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int,
                   progress: float | bool = False, label: str = "local"):
     """Solve from each start of ``z0s`` (K, n) in one vmapped batch, stepped from Python;
-    returns (z, code, steps, cost, final step size) batched over K and whether it was
-    interrupted. ``progress``: seconds between progress lines on stderr (True = 2 s;
+    returns (z, code, steps, cost, final step size, group residuals) batched over K and
+    whether it was interrupted. ``progress``: seconds between progress lines on stderr (True = 2 s;
     a live line on a terminal). Ctrl-C/SIGTERM (`jaxhyst._interrupt`) stops after the
     current chunk of steps with the points reached."""
     from .._interrupt import interruptible
@@ -202,14 +203,14 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int,
     with interruptible() as stop:
         while np.any(np.asarray(_running(carry, max_steps))):
             c0 = time.perf_counter()
-            carry = _advance_jit(problem, solver, static, carry, jnp.asarray(chunk),
-                                 jnp.asarray(max_steps))  # arrays: no recompile
+            carry, costs = _advance_jit(problem, solver, static, carry, jnp.asarray(chunk),
+                                        jnp.asarray(max_steps), bool(every))  # no recompile
             jax.block_until_ready(carry)
             now = time.perf_counter()
             if now - c0 < 0.25:  # keep each dispatch near a quarter second
                 chunk = min(chunk * 2, 64)
             if every and (now - last >= every or last == t0):
-                costs = np.asarray(_costs_jit(problem, carry[0]))
+                costs = np.asarray(costs)
                 best = np.min(np.where(np.isfinite(costs), costs, np.inf))
                 _say(label, f"step {int(np.max(carry[1]))}/{max_steps}: best cost "
                      f"{best:.4e}, {now - t0:.1f} s", live=last != t0)
@@ -272,9 +273,11 @@ def _evaluate_at(problem, z):
 
 
 def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: float,
-              extra: dict | None = None) -> IdentificationResult:
-    """An `IdentificationResult` at the solver coordinate ``z`` (without report)."""
-    cost, residuals = _evaluate_at(problem, jnp.asarray(z))
+              extra: dict | None = None, evaluated=None) -> IdentificationResult:
+    """An `IdentificationResult` at the solver coordinate ``z`` (without report).
+    ``evaluated``: (cost, group residuals) at ``z`` when the caller has them already."""
+    cost, residuals = evaluated if evaluated is not None else _evaluate_at(
+        problem, jnp.asarray(z))
     cost = float(cost)
     outcome = Outcome(outcome)
     if not np.isfinite(cost) and outcome is not Outcome.interrupted:
@@ -324,11 +327,12 @@ def solve(problem: AbstractProblem, start, solver="lm", max_steps: int = 200,
         raise ValueError("solve takes one start; use multistart for a batch of starts.")
     solver_obj = make_solver(solver, rtol, atol)
     t0 = time.perf_counter()
-    (z, code, steps, _, _), interrupted = stepped_solve(
+    (z, code, steps, cost, _, residuals), interrupted = stepped_solve(
         problem, solver_obj, z0[None], max_steps, progress, solver_name(solver))
     wall = time.perf_counter() - t0
     outcome = Outcome.interrupted if interrupted else CODES[int(code[0])]
-    return summarize(problem, z[0], steps[0], outcome, solver_name(solver), wall)
+    return summarize(problem, z[0], steps[0], outcome, solver_name(solver), wall,
+                     evaluated=(cost[0], [r[0] for r in residuals]))
 
 
 def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 200,
@@ -346,7 +350,7 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
     solver_obj = make_solver(solver, rtol, atol)
     t0 = time.perf_counter()
     label = f"{solver_name(solver)} x{z0s.shape[0]}"
-    (zs, codes, steps, costs, _), interrupted = stepped_solve(
+    (zs, codes, steps, costs, _, residuals), interrupted = stepped_solve(
         problem, solver_obj, z0s, max_steps, progress, label)
     costs = np.asarray(costs)
     wall = time.perf_counter() - t0
@@ -362,4 +366,5 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
     outcome = Outcome.interrupted if interrupted else CODES[int(codes[best])]
     return summarize(problem, zs[best], steps[best], outcome,
                      f"{solver_name(solver)} x{len(costs)}", wall,
-                     extra={"starts": table, "best_index": best})
+                     extra={"starts": table, "best_index": best},
+                     evaluated=(costs[best], [r[best] for r in residuals]))
