@@ -12,8 +12,10 @@
 
     python benchmarks/bench_transforms.py [--spp 200] [--repeats 30]
 
-Times are medians of repeated calls after compilation. Run on a quiet machine; compare
-ratios within one run only.
+Times are medians of repeated calls after compilation; the functions of one table are
+timed in interleaved rounds (in each, every function called twice and the second call
+timed), so that the machine's speed drifting during the run does not bias their ratios.
+Run on a quiet machine; compare ratios within one run only.
 """
 
 from __future__ import annotations
@@ -38,6 +40,23 @@ def median_ms(fn, repeats):
         fn()
         times.append(time.perf_counter() - t0)
     return float(np.median(times)) * 1e3
+
+
+def interleaved_ms(fns, repeats):
+    """Median ms per call of each of ``fns`` ({name: thunk}), timed in interleaved rounds
+    so that a drift in machine speed during the run biases no ratio between them. In
+    each round every function is called twice and the second call timed: the caches
+    hold its own data, as when it is called repeatedly, not the previous function's."""
+    for fn in fns.values():
+        fn()
+    times = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            fn()
+            t0 = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t0)
+    return {name: float(np.median(v)) * 1e3 for name, v in times.items()}
 
 
 def setup(spp):
@@ -114,15 +133,17 @@ def derivative_table(spp, repeats):
     J = jax.jit(jax.jacfwd(s["y_of"]))
     Hs = jax.jit(jax.hessian(s["loss"]))
     z0, x0, H0 = s["z0"], s["x0"], s["drive"].H
-    rows = {
-        "forward": median_ms(lambda: f(z0).block_until_ready(), repeats),
-        "grad (a, k, c)": median_ms(lambda: g(z0).block_until_ready(), repeats),
-        "grad (every drive sample)": median_ms(lambda: gH(H0).block_until_ready(), repeats),
-        "jacfwd of y (10 parameters)": median_ms(lambda: J(x0).block_until_ready(), repeats),
-        "hessian (a, k, c)": median_ms(lambda: Hs(z0).block_until_ready(), repeats),
+    ours = {
+        "forward": lambda: f(z0).block_until_ready(),
+        "grad (a, k, c)": lambda: g(z0).block_until_ready(),
+        "grad (every drive sample)": lambda: gH(H0).block_until_ready(),
+        "jacfwd of y (10 parameters)": lambda: J(x0).block_until_ready(),
+        "hessian (a, k, c)": lambda: Hs(z0).block_until_ready(),
     }
+    for fn in ours.values():  # compile with the derivative rule in place
+        fn()
     # plain JAX AD of the same time loop, without the custom rule
-    plain = mag.magnetization_path
+    plain_path = mag.magnetization_path
     mag.magnetization_path = lambda p, H, *, variant, substeps: mag._time_loop(
         variant, p, H, substeps, batched=False)
     sim_mod = sys.modules["jaxhyst.model.simulate"]  # (jaxhyst.model.simulate is a function)
@@ -133,19 +154,24 @@ def derivative_table(spp, repeats):
         g2 = jax.jit(jax.grad(s2["loss"]))
         gH2 = jax.jit(jax.grad(s2["loss_H"]))
         J2 = jax.jit(jax.jacfwd(s2["y_of"]))
-        plain_rows = {
-            "forward": median_ms(lambda: f2(z0).block_until_ready(), repeats),
-            "grad (a, k, c)": median_ms(lambda: g2(z0).block_until_ready(), repeats),
-            "grad (every drive sample)": median_ms(lambda: gH2(H0).block_until_ready(),
-                                                   repeats),
-            "jacfwd of y (10 parameters)": median_ms(lambda: J2(x0).block_until_ready(),
-                                                     repeats),
+        plain = {
+            "forward": lambda: f2(z0).block_until_ready(),
+            "grad (a, k, c)": lambda: g2(z0).block_until_ready(),
+            "grad (every drive sample)": lambda: gH2(H0).block_until_ready(),
+            "jacfwd of y (10 parameters)": lambda: J2(x0).block_until_ready(),
         }
+        for fn in plain.values():  # compile while the plain loop is in place
+            fn()
         agree = float(jnp.max(jnp.abs(g(z0) - g2(z0))) / jnp.max(jnp.abs(g2(z0))))
     finally:
-        mag.magnetization_path = plain
-        sim_mod.magnetization_path = plain
-    return rows, plain_rows, agree, s["drive"].n_samples, jh.cpu_loop_kernels()
+        mag.magnetization_path = plain_path
+        sim_mod.magnetization_path = plain_path
+    timed = interleaved_ms({**{("ours", k): v for k, v in ours.items()},
+                            **{("plain", k): v for k, v in plain.items()}}, repeats)
+    rows = {k: timed["ours", k] for k in ours}
+    plain_rows = {k: timed["plain", k] for k in plain}
+    return (rows, plain_rows, agree, s["drive"].n_samples, jh.cpu_loop_kernels(),
+            ours["forward"])
 
 
 def population_table(spp, repeats, sharded):
@@ -162,12 +188,12 @@ def population_table(spp, repeats, sharded):
             from jaxhyst.sharding import map_sharded
 
             batched = jax.jit(map_sharded(jax.vmap(s["y_of"]), P, True))
-        t = median_ms(lambda X=X: batched(X).block_until_ready(), max(3, repeats // 5))
+        t = median_ms(lambda X=X: batched(X).block_until_ready(), max(5, repeats // 3))
         rows[P] = t / (P * s["drive"].n_samples) * 1e6  # ns per individual·sample
     return rows
 
 
-def numba_table(spp, repeats):
+def numba_table(spp, repeats, jax_forward):
     sys.path.insert(0, HERE)
     from reference_loop import numba_module, structural_matrices
 
@@ -180,7 +206,9 @@ def numba_table(spp, repeats):
     th = np.asarray(jh.TABLE1_TRUE.to_array())
     Phi, G = structural_matrices(th[7], th[8], th[9], h)
     y = np.zeros(T)
-    single = median_ms(lambda: mod.simulate_loop(th, Ar, H, h, 2, Phi, G, y), repeats * 5)
+    single = interleaved_ms({"jax": jax_forward,
+                             "numba": lambda: mod.simulate_loop(th, Ar, H, h, 2, Phi, G, y)},
+                            repeats * 2)
     rng = np.random.default_rng(0)
     lo = np.asarray(jh.TABLE1_BOUNDS.lower.to_array())
     hi = np.asarray(jh.TABLE1_BOUNDS.upper.to_array())
@@ -191,13 +219,13 @@ def numba_table(spp, repeats):
         Phis, Gs = np.stack([m[0] for m in mats]), np.stack([m[1] for m in mats])
         Y = np.zeros((P, T))
         par = median_ms(lambda: mod.simulate_population(X, Ar, H, h, 2, Phis, Gs, Y),
-                        max(3, repeats // 5))
+                        max(5, repeats // 3))
 
         def serial(X=X, Phis=Phis, Gs=Gs, Y=Y):
             for j in range(len(X)):
                 mod.simulate_loop(X[j], Ar, H, h, 2, Phis[j], Gs[j], Y[j])
 
-        ser = median_ms(serial, max(3, repeats // 5))
+        ser = median_ms(serial, max(5, repeats // 3))
         rows[P] = (par / (P * T) * 1e6, ser / (P * T) * 1e6)
     return single, rows
 
@@ -219,7 +247,7 @@ def main():
     from bench_simulate import machine
 
     print(f"machine: {machine()}\n", flush=True)
-    rows, plain_rows, agree, T, loops = derivative_table(args.spp, args.repeats)
+    rows, plain_rows, agree, T, loops, forward = derivative_table(args.spp, args.repeats)
     fwd = rows["forward"]
     print(f"Table 1 drive, T = {T} samples, 2 RK4 substeps; XLA:CPU loop kernels: {loops}\n")
     print("| transformation | jaxhyst (ms) | × forward | plain AD of the scan (ms) | × forward |")
@@ -229,9 +257,9 @@ def main():
         ps = f"{pv:.3f} | {pv / plain_rows['forward']:.1f}" if pv else "– | –"
         print(f"| {k} | {v:.3f} | {v / fwd:.1f} | {ps} |")
     print(f"\ngrad agrees with plain AD to {agree:.1e} (relative)\n", flush=True)
-    single, numba_rows = numba_table(args.spp, args.repeats)
-    print(f"single trajectory: jaxhyst forward {fwd:.3f} ms, Numba {single:.3f} ms "
-          f"({fwd / single:.1f}×)\n", flush=True)
+    single, numba_rows = numba_table(args.spp, args.repeats, forward)
+    print(f"single trajectory (interleaved): jaxhyst forward {single['jax']:.3f} ms, Numba "
+          f"{single['numba']:.3f} ms ({single['jax'] / single['numba']:.1f}×)\n", flush=True)
     one = population_table(args.spp, args.repeats, False)
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
     child = subprocess.run([sys.executable, __file__, "--sharded-child", "--spp",
