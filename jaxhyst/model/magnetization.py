@@ -19,9 +19,9 @@ tangent is the linear recurrence dM_{n+1} = a_n·dM_n + r_n, where a_n = ∂M_{n
 r_n = ∂M_{n+1}/∂(θ, H_n, H_{n+1})·(dθ, dH) are partial derivatives of one interval's map,
 formed by forward mode in one pass of the time loop (a primal and one tangent per input,
 no tangent carried from interval to interval), followed by a scalar scan for the
-recurrence. JAX transposes that rule for reverse mode, so `grad`
-never replays the time loop's body backwards, and the rule calls `magnetization_path`
-itself, so higher derivatives use it again.
+recurrence. JAX transposes that rule for reverse mode, so `grad` never replays the time
+loop's body backwards, and the rule calls `magnetization_path` itself, so higher
+derivatives use it again.
 """
 
 from __future__ import annotations
@@ -266,8 +266,8 @@ def _interval_outputs(variant, p, H0, H1, M0, delta_prev, substeps, batched=Fals
     return jnp.concatenate([M_points, k_points, k_prev_end[..., None]], axis=-1)
 
 
-#: Tangents per SIMD register (four float64 on AVX2). 6 tangents padded to 8 measured
-#: ~20 % faster than 6 (docs/benchmarks.md).
+#: Tangents per SIMD register (four float64 on AVX2): one trajectory's tangent count is
+#: padded to a multiple of it (measured in benchmarks/RESULTS.md, issue 13).
 _LANES = 4
 
 
