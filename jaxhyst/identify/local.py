@@ -156,8 +156,8 @@ def _finish_one(problem, solver, static, carry):
     y, _, _ = solver.postprocess(fn, y, None, None, options, state, _TAGS, result)
     # cost and group residuals at the end for `summarize`, in this program: a separate
     # evaluation would compile the simulation once more
-    residuals = problem.group_residuals(problem.space.params_from_z(y))
-    return y, _code(result), steps, problem.cost(y), final_step_size(state), residuals
+    cost, residuals = _evaluation(problem, y)
+    return y, _code(result), steps, cost, final_step_size(state), residuals
 
 
 @eqx.filter_jit
@@ -265,11 +265,13 @@ def _stats(groups, residuals):
     return out, float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e))), float(np.sum(e**2))
 
 
-@eqx.filter_jit
-def _evaluate_at(problem, z):
-    """(cost, group residuals) at z, compiled (an eager vmapped scan runs op by op)."""
-    params = problem.space.params_from_z(z)
-    return problem.cost(z), problem.group_residuals(params)
+def _evaluation(problem, z):
+    """(cost, group residuals) at the solver coordinate z."""
+    return problem.cost(z), problem.group_residuals(problem.space.params_from_z(z))
+
+
+# compiled: an eager vmapped scan runs op by op
+_evaluate_at = eqx.filter_jit(_evaluation)
 
 
 def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: float,

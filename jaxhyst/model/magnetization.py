@@ -205,32 +205,37 @@ def _scan(p, H, variant, substeps):
     with that interval's direction (N, S + 1)), starting demagnetized (M = 0). Under
     ``jax.vmap`` it runs the batch-native loop (`interval_map_batched`)."""
     if substeps not in _SCANS:
-        # jitted: every call site in a program reuses one trace (tracing costs seconds)
-        _SCANS[substeps] = jax.jit(_batching_scan(substeps))
+        _SCANS[substeps] = _batch_native(
+            lambda variant, p, H, batched: _time_loop(variant, p, H, substeps, batched))
     return _SCANS[substeps](variant, p, H)
 
 
-def _batching_scan(substeps):
+def _batch_native(loop):
+    """``loop(variant, p, H, batched)`` as a jitted function of (variant, p, H) (every call
+    site in a program reuses one trace; tracing costs seconds) whose ``jax.vmap`` runs
+    ``loop(..., batched=True)`` once on the whole batch (unbatched arguments broadcast),
+    and a batch of one member the smaller unbatched program (a single-start solve)."""
     @jax.custom_batching.custom_vmap
-    def scan(variant, p, H):
-        return _time_loop(variant, p, H, substeps, batched=False)
+    def single(variant, p, H):
+        return loop(variant, p, H, False)
 
-    @scan.def_vmap
-    def scan_batched(axis_size, in_batched, variant, p, H):
-        if not any(jax.tree.leaves(in_batched)):  # (jvp of the rule asks this too)
-            return _time_loop(variant, p, H, substeps, batched=False), (False, False)
+    @single.def_vmap
+    def batch(axis_size, in_batched, variant, p, H):
+        args, flags = (variant, p, H), tuple(in_batched)
+        if not any(jax.tree.leaves(flags)):  # (jvp of the rule asks this too)
+            out = loop(*args, False)
+            return out, jax.tree.map(lambda _: False, out)
+        if axis_size == 1:
+            args = jax.tree.map(lambda x, b: x[0] if b else x, args, flags)
+            out = jax.tree.map(lambda y: y[None], loop(*args, False))
+        else:
+            args = jax.tree.map(
+                lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))),
+                args, flags)
+            out = loop(*args, True)
+        return out, jax.tree.map(lambda _: True, out)
 
-        def full(x, batched):
-            return x if batched else jnp.broadcast_to(x, (axis_size, *jnp.shape(x)))
-
-        variant, p, H = jax.tree.map(full, (variant, p, H), tuple(in_batched))
-        if axis_size == 1:  # one member (a single start): the smaller unbatched program
-            out = _time_loop(*jax.tree.map(lambda x: x[0], (variant, p, H)), substeps,
-                             batched=False)
-            return jax.tree.map(lambda x: x[None], out), (True, True)
-        return _time_loop(variant, p, H, substeps, batched=True), (True, True)
-
-    return scan
+    return jax.jit(single)
 
 
 def substep_fields(H, substeps: int):
@@ -322,28 +327,9 @@ def _sensitivity_scan(variant, p, H, names, with_H, substeps):
     """`_sensitivity_loop` for one trajectory, batch-native under ``jax.vmap``."""
     key = (names, with_H, substeps)
     if key not in _SENSITIVITY:
-        @jax.custom_batching.custom_vmap
-        def loop(variant, p, H):
-            return _sensitivity_loop(variant, p, H, names, with_H, substeps, batched=False)
-
-        @loop.def_vmap
-        def loop_batched(axis_size, in_batched, variant, p, H):
-            if not any(jax.tree.leaves(in_batched)):  # (jvp of the rule asks this too)
-                out = _sensitivity_loop(variant, p, H, names, with_H, substeps, False)
-                return out, (False, False)
-
-            def full(x, batched):
-                return x if batched else jnp.broadcast_to(x, (axis_size, *jnp.shape(x)))
-
-            variant, p, H = jax.tree.map(full, (variant, p, H), tuple(in_batched))
-            if axis_size == 1:  # one member: the smaller unbatched program
-                out = _sensitivity_loop(*jax.tree.map(lambda x: x[0], (variant, p, H)),
-                                        names, with_H, substeps, batched=False)
-                return jax.tree.map(lambda x: x[None], out), (True, True)
-            out = _sensitivity_loop(variant, p, H, names, with_H, substeps, batched=True)
-            return out, (True, True)
-
-        _SENSITIVITY[key] = jax.jit(loop)
+        _SENSITIVITY[key] = _batch_native(
+            lambda variant, p, H, batched: _sensitivity_loop(variant, p, H, names, with_H,
+                                                             substeps, batched))
     return _SENSITIVITY[key](variant, p, H)
 
 
