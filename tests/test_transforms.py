@@ -188,3 +188,24 @@ def test_batched_parameters_given_to_simulate_are_refused_with_the_fix():
     batch = jh.Parameters.from_array(jnp.stack([jh.TABLE1_TRUE.to_array()] * 3))
     with pytest.raises(ValueError, match="simulate_batch"):
         jh.simulate(batch, jh.ACTUATOR1, _drive())
+
+
+@pytest.mark.filterwarnings("ignore::jaxhyst.identify.problem.SamplingWarning")
+def test_a_local_solve_traces_each_time_loop_once(monkeypatch):
+    # the loops take seconds to trace: the forward loop (data, final evaluation) and the
+    # partials pass (linearized in the solver's init and again in its step, under vmap)
+    # are each traced once; a drive length no other test uses keeps the count fresh
+    calls = []
+    for name in ("_time_loop", "_sensitivity_loop"):
+        original = getattr(mag, name)
+
+        def counted(*args, _original=original, _name=name, **kwargs):
+            calls.append(_name)
+            return _original(*args, **kwargs)
+
+        monkeypatch.setattr(mag, name, counted)
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=37)
+    problem = jh.synthetic_problem(jh.TABLE1_TRUE, drive, jh.ACTUATOR1, jh.TABLE1_BOUNDS,
+                                   fixed=["Ms", "lambda_s", "alpha", "E", "Kz", "Mz", "Cz"])
+    jh.solve(problem, np.full(3, 0.5), solver="lm", max_steps=3, report=False)
+    assert sorted(calls) == ["_sensitivity_loop", "_time_loop"]

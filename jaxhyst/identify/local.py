@@ -38,6 +38,12 @@ def jacobian_linearized(fn):
     each use; with this rule the stored linearization is just the matrix J, so each step
     costs one jacfwd. Values and derivatives are unchanged (the rule is the exact
     derivative); it differentiates again (jacfwd inside) if needed.
+
+    The Jacobian is formed by one jitted function of (fn, z, args), so a program that
+    linearizes ``fn`` more than once (Optimistix's ``init`` for the shapes, then
+    ``step``) traces it once, provided ``fn`` is the same pytree each time (a bound
+    method of an equinox Module, as ``problem.residuals``, is one: its arrays are
+    arguments, the rest is compared by equality).
     """
 
     @jax.custom_jvp
@@ -48,15 +54,21 @@ def jacobian_linearized(fn):
     def f_jvp(primals, tangents):
         z, args = primals
         t, _ = tangents
-
-        def both(z):
-            r = fn(z, args)
-            return r, r
-
-        J, r = jax.jacfwd(both, has_aux=True)(z)
+        J, r = _jacobian_and_value(fn, z, args)
         return r, J @ t
 
     return f
+
+
+@eqx.filter_jit
+def _jacobian_and_value(fn, z, args):
+    """(∂fn/∂z, fn(z, args)) by one forward-mode pass."""
+
+    def both(z):
+        r = fn(z, args)
+        return r, r
+
+    return jax.jacfwd(both, has_aux=True)(z)
 
 
 def _code(result) -> jax.Array:
@@ -160,6 +172,9 @@ def _finish_one(problem, solver, static, carry):
     return y, _code(result), steps, cost, final_step_size(state), residuals
 
 
+_running_jit = jax.jit(_running)  # (op by op, each operation would compile on its own)
+
+
 @eqx.filter_jit
 def _init_jit(problem, solver, z0s):
     return eqx.filter_vmap(lambda z: _init_one(problem, solver, z),
@@ -201,7 +216,7 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int,
     carry, static = _init_jit(problem, solver, z0s)
     interrupted, chunk, last = False, 1, t0
     with interruptible() as stop:
-        while np.any(np.asarray(_running(carry, max_steps))):
+        while np.any(np.asarray(_running_jit(carry, jnp.asarray(max_steps)))):
             c0 = time.perf_counter()
             carry, costs = _advance_jit(problem, solver, static, carry, jnp.asarray(chunk),
                                         jnp.asarray(max_steps), bool(every))  # no recompile
@@ -245,9 +260,12 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
     if u.ndim not in (1, 2) or u.shape[-1] != space.n_free:
         raise ValueError(f"A start in box coordinates needs {space.n_free} entries (free "
                          f"parameters {space.names}); got shape {u.shape}.")
-    if not bool(jnp.all((u >= 0) & (u <= 1))):
+    if not np.all((np.asarray(u) >= 0) & (np.asarray(u) <= 1)):
         raise ValueError("Box coordinates u of a start must lie in [0, 1].")
-    return z_from_u(u)
+    return _z_from_u_jit(u)
+
+
+_z_from_u_jit = jax.jit(z_from_u)
 
 
 def _stats(groups, residuals):
@@ -274,6 +292,12 @@ def _evaluation(problem, z):
 _evaluate_at = eqx.filter_jit(_evaluation)
 
 
+@eqx.filter_jit
+def _point(space, z):
+    """(free values in SI, parameter pytree) at the solver coordinate z."""
+    return space.free_from_u(u_from_z(z)), space.params_from_z(z)
+
+
 def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: float,
               extra: dict | None = None, evaluated=None) -> IdentificationResult:
     """An `IdentificationResult` at the solver coordinate ``z`` (without report).
@@ -290,12 +314,13 @@ def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: fl
         for g, sc in zip(groups.values(), scales, strict=True):
             g["data_scale"] = sc
     space = problem.space
-    values = np.asarray(space.free_from_u(u_from_z(jnp.asarray(z))), dtype=float)
+    values, params = _point(space, jnp.asarray(z))
+    values = np.asarray(values, dtype=float)
     lower, upper = np.asarray(space.lower), np.asarray(space.upper)
     at_bound = {space.names[i]: (side, float(lower[i] if side == "lower" else upper[i]))
                 for i, side in bound_status(values, lower, upper).items()}
     return IdentificationResult(
-        params=space.params_from_z(jnp.asarray(z)), free=space.names,
+        params=params, free=space.names,
         values=tuple(float(v) for v in values), cost=cost, outcome=outcome, steps=int(steps),
         solver=solver, wall_time=wall, groups=groups, rms_error=rms, max_abs_error=max_abs,
         sse=sse, output=getattr(problem, "output", ""), extra=extra or {},

@@ -32,7 +32,13 @@ import numpy as np
 from ..actuator import Actuator
 from ..drive import Drive
 from ..model.jiles_atherton import JAVariant
-from ..model.simulate import DEFAULT_SUBSTEPS, PAPER_VARIANT, Simulation, simulate_unchecked
+from ..model.simulate import (
+    DEFAULT_SUBSTEPS,
+    PAPER_VARIANT,
+    Simulation,
+    simulate,
+    simulate_unchecked,
+)
 from ..params import MU0, Bounds, Parameters, check_parameters
 from .measured import coarse_sampling, holds_loop
 from .space import ParameterSpace, u_from_z
@@ -442,8 +448,9 @@ def synthetic_problem(params: Parameters, drive: Drive, actuator: Actuator, boun
     if fixed is not None and not isinstance(fixed, dict):
         fixed = {n: float(getattr(params, n)) for n in fixed}
     space = ParameterSpace(bounds, fixed)
-    sim = simulate_unchecked(params, actuator, drive, kwargs.get("variant", PAPER_VARIANT),
-                             kwargs.get("substeps", DEFAULT_SUBSTEPS))
+    # compiled as one program (op by op, the first call compiled ~150 small programs)
+    sim = simulate(params, actuator, drive, kwargs.get("variant", PAPER_VARIANT),
+                   kwargs.get("substeps", DEFAULT_SUBSTEPS))
     data = drive.observed(OUTPUTS[output][1](sim))
     if noise:
         if key is None:

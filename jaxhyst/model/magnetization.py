@@ -29,6 +29,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jax.extend.core import jaxpr_as_fun
 
 from ..params import Parameters
 from .jiles_atherton import JAVariant
@@ -210,29 +211,62 @@ def _scan(p, H, variant, substeps):
     return _SCANS[substeps](variant, p, H)
 
 
+#: Traces kept per time loop (one per drive length and dtype in use, each a few MB).
+_TRACES_KEPT = 16
+
+
+def _traced_once(fn):
+    """``fn`` evaluated from a jaxpr traced once per structure, shapes and dtypes of its
+    arguments (a pytree of arrays), whatever transformation or program calls it. A time
+    loop takes seconds to trace; JAX's jit cache would not share the trace between a
+    function's primal call and its batching rule, or between the programs of a local
+    solve (it also keys on the tracing context)."""
+    cache: dict = {}
+
+    def call(*args):
+        leaves, treedef = jax.tree.flatten(args)
+        key = (treedef, tuple((jnp.shape(x), jnp.result_type(x), _weak(x)) for x in leaves))
+        if key not in cache:
+            closed, shapes = jax.make_jaxpr(fn, return_shape=True)(*args)
+            if len(cache) >= _TRACES_KEPT:
+                del cache[next(iter(cache))]  # the oldest
+            cache[key] = (jaxpr_as_fun(closed), jax.tree.structure(shapes))
+        evaluate, out_tree = cache[key]
+        return jax.tree.unflatten(out_tree, evaluate(*leaves))
+
+    return call
+
+
+def _weak(x) -> bool:
+    return bool(getattr(jax.typeof(x), "weak_type", False))
+
+
 def _batch_native(loop):
-    """``loop(variant, p, H, batched)`` as a jitted function of (variant, p, H) (every call
-    site in a program reuses one trace; tracing costs seconds) whose ``jax.vmap`` runs
+    """``loop(variant, p, H, batched)`` as a jitted function of (variant, p, H) (each form
+    traced once, `_traced_once`) whose ``jax.vmap`` runs
     ``loop(..., batched=True)`` once on the whole batch (unbatched arguments broadcast),
     and a batch of one member the smaller unbatched program (a single-start solve)."""
+    unbatched = _traced_once(lambda variant, p, H: loop(variant, p, H, False))
+    batched = _traced_once(lambda variant, p, H: loop(variant, p, H, True))
+
     @jax.custom_batching.custom_vmap
     def single(variant, p, H):
-        return loop(variant, p, H, False)
+        return unbatched(variant, p, H)
 
     @single.def_vmap
     def batch(axis_size, in_batched, variant, p, H):
         args, flags = (variant, p, H), tuple(in_batched)
         if not any(jax.tree.leaves(flags)):  # (jvp of the rule asks this too)
-            out = loop(*args, False)
+            out = unbatched(*args)
             return out, jax.tree.map(lambda _: False, out)
         if axis_size == 1:
             args = jax.tree.map(lambda x, b: x[0] if b else x, args, flags)
-            out = jax.tree.map(lambda y: y[None], loop(*args, False))
+            out = jax.tree.map(lambda y: y[None], unbatched(*args))
         else:
             args = jax.tree.map(
                 lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))),
                 args, flags)
-            out = loop(*args, True)
+            out = batched(*args)
         return out, jax.tree.map(lambda _: True, out)
 
     return jax.jit(single)

@@ -171,8 +171,11 @@ def simulate(
     _check_inputs(params, actuator, drive, variant, substeps)
     _check_single(params, drive)
     sim = _simulate_jit(params, actuator, drive, variant, substeps)
-    if not isinstance(sim.M, jax.core.Tracer) and not bool(sim.finite):
-        bad = np.flatnonzero(~(np.isfinite(np.asarray(sim.M)) & np.isfinite(np.asarray(sim.y))))
+    if isinstance(sim.M, jax.core.Tracer):
+        return sim
+    finite = np.isfinite(np.asarray(sim.M)) & np.isfinite(np.asarray(sim.y))  # (no compile)
+    if not finite.all():
+        bad = np.flatnonzero(~finite)
         i = int(bad[0])
         raise FloatingPointError(
             f"The simulation diverged: its signals are not finite from sample {i} (t = "
