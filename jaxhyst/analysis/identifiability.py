@@ -352,11 +352,16 @@ def _analyse(names, values, scale, J, e, null_tol) -> dict:
                 null_space=Vt[null])
 
 
+#: Relative resolution of float64 data: the floor of an estimated noise level.
+_RESOLUTION = float(np.finfo(np.float64).eps)
+
+
 def whitened_log_jacobian(problem, x0, scale):
     """(Jw, ew, σ) at the free values ``x0``: the Jacobian of every residual with respect
     to dx at dx = 0 for x = x0 + dx·scale (relative coordinates when scale = x0), and
     the residuals, each group divided by its noise level σ_g (declared, or estimated as
-    RSS_g/(N_g − n·N_g/N)), priors by their sd; σ: the σ_g used, shape (groups,). One
+    √(RSS_g/(N_g − n·N_g/N)), but not below 2.2e-16 times the group's scale), priors by
+    their sd; σ: the σ_g used, shape (groups,). One
     forward pass (the residuals ride along as jacfwd's aux). Traceable: used jitted here
     and inside the vmapped replicate fits."""
     space = problem.space
@@ -378,7 +383,10 @@ def whitened_log_jacobian(problem, x0, scale):
             sig.append(jnp.asarray(g.sigma, dtype=e.dtype))
         else:
             dof = max(g.size - n * g.size / N, 1.0)
-            sig.append(jnp.sqrt(jnp.sum(e[bounds[k]:bounds[k + 1]] ** 2) / dof))
+            rss = jnp.sum(e[bounds[k]:bounds[k + 1]] ** 2)
+            # no estimate below the data's float64 resolution: data an exact fit
+            # reproduces bit for bit (simulated, noise-free) would give σ = 0
+            sig.append(jnp.maximum(jnp.sqrt(rss / dof), _RESOLUTION * jnp.abs(g.scale)))
     sigma = jnp.stack(sig)
     per_row = jnp.repeat(sigma, sizes, total_repeat_length=N)
     per_row = jnp.where(per_row > 0, per_row, 1.0)

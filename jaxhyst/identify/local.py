@@ -384,10 +384,10 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
     ranked = np.where(np.isfinite(costs), costs, np.inf)
     best = int(np.argmin(ranked))
     space = problem.space
+    values = np.asarray(_point(space, zs)[0])  # (K, n), one compiled call
     table = [
         {"cost": float(costs[i]), "result": CODES[int(codes[i])].value, "steps": int(steps[i]),
-         "params": dict(zip(space.names, np.asarray(space.free_from_u(u_from_z(zs[i]))).tolist(),
-                            strict=True))}
+         "params": dict(zip(space.names, values[i].tolist(), strict=True))}
         for i in range(len(costs))
     ]  # fmt: skip
     outcome = Outcome.interrupted if interrupted else CODES[int(codes[best])]
