@@ -361,9 +361,9 @@ def whitened_log_jacobian(problem, x0, scale):
     to dx at dx = 0 for x = x0 + dx·scale (relative coordinates when scale = x0), and
     the residuals, each group divided by its noise level σ_g (declared, or estimated as
     √(RSS_g/(N_g − n·N_g/N)), but not below 2.2e-16 times the group's scale), priors by
-    their sd; σ: the σ_g used, shape (groups,). One
-    forward pass (the residuals ride along as jacfwd's aux). Traceable: used jitted here
-    and inside the vmapped replicate fits."""
+    their sd; σ: the σ_g used, shape (groups,). One forward pass (the residuals ride
+    along as jacfwd's aux). Traceable: used jitted here and inside the vmapped replicate
+    fits."""
     space = problem.space
     groups = problem.groups
     n = x0.shape[0]
