@@ -29,10 +29,14 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jax.extend.core import jaxpr_as_fun
 
 from ..params import Parameters
 from .jiles_atherton import JAVariant
+
+try:  # public since jax 0.4.3x; jax.core before
+    from jax.extend.core import jaxpr_as_fun
+except ImportError:  # pragma: no cover
+    from jax.core import jaxpr_as_fun
 
 
 def _rk4(f, H, M, dH, k1):
@@ -238,7 +242,11 @@ def _traced_once(fn):
 
 
 def _weak(x) -> bool:
-    return bool(getattr(jax.typeof(x), "weak_type", False))
+    """Whether x is weakly typed (a Python scalar, or an array or tracer marked so)."""
+    if isinstance(x, (bool, int, float, complex)):
+        return True
+    aval = getattr(x, "aval", None)
+    return bool(getattr(x, "weak_type", False) or getattr(aval, "weak_type", False))
 
 
 def _batch_native(loop):
