@@ -260,7 +260,8 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
     if u.ndim not in (1, 2) or u.shape[-1] != space.n_free:
         raise ValueError(f"A start in box coordinates needs {space.n_free} entries (free "
                          f"parameters {space.names}); got shape {u.shape}.")
-    if not np.all((np.asarray(u) >= 0) & (np.asarray(u) <= 1)):
+    u_np = np.asarray(u)
+    if not np.all((u_np >= 0) & (u_np <= 1)):
         raise ValueError("Box coordinates u of a start must lie in [0, 1].")
     return _z_from_u_jit(u)
 

@@ -170,8 +170,18 @@ def interval_map_batched(variant, p, H0, H1, M0, substeps: int):
 
 
 def _direction(H):
-    """δ_n = sign(H_{n+1} − H_n) per interval (+1 where the field stands still)."""
+    """δ_n = sign(H_{n+1} − H_n) per interval along the first axis (+1 where the field
+    stands still)."""
     return jnp.where(H[1:] >= H[:-1], 1.0, -1.0)
+
+
+def _previous_end_slope(slope, p, H0, M0, delta, delta_prev, k_start):
+    """The previous interval's end slope at (H0, M0): this interval's slope at u_0,
+    ``k_start``, unless the field reversed here (δ ≠ δ_prev); then one evaluation with
+    δ_prev, computed only when some member reversed."""
+    same = delta == delta_prev
+    return jax.lax.cond(jnp.all(same), lambda: k_start,
+                        lambda: jnp.where(same, k_start, slope(H0, M0, delta_prev, p)))
 
 
 def _time_loop(variant, p, H, substeps: int, batched: bool):
@@ -180,17 +190,14 @@ def _time_loop(variant, p, H, substeps: int, batched: bool):
     step_map = interval_map_batched if batched else interval_map
     slope = jax.vmap(variant.slope) if batched else variant.slope
     H_t = jnp.moveaxis(H, -1, 0)  # time first
-    directions = jnp.where(H_t[1:] >= H_t[:-1], 1.0, -1.0)
+    directions = _direction(H_t)
 
     def step(carry, interval):
         M, delta_prev = carry
         H0, H1, delta = interval
         M_points, k_points = step_map(variant, p, H0, H1, M, substeps)
-        # the previous interval's end slope: the same unless the field reversed here
-        same = delta == delta_prev
-        k_prev_end = jax.lax.cond(jnp.all(same), lambda: k_points[..., 0],
-                                  lambda: jnp.where(same, k_points[..., 0],
-                                                    slope(H0, M, delta_prev, p)))
+        k_prev_end = _previous_end_slope(slope, p, H0, M, delta, delta_prev,
+                                         k_points[..., 0])
         return (M_points[..., -1], delta), (M_points, k_points, k_prev_end)
 
     M0 = jnp.zeros(H_t.shape[1:], dtype=H.dtype)
@@ -306,10 +313,8 @@ def _interval_outputs(variant, p, H0, H1, M0, delta_prev, substeps, batched=Fals
     step_map = interval_map_batched if batched else interval_map
     slope = jax.vmap(variant.slope) if batched else variant.slope
     M_points, k_points = step_map(variant, p, H0, H1, M0, substeps)
-    same = _direction_of(H0, H1) == delta_prev
-    k_prev_end = jax.lax.cond(jnp.all(same), lambda: k_points[..., 0],
-                              lambda: jnp.where(same, k_points[..., 0],
-                                                slope(H0, M0, delta_prev, p)))
+    k_prev_end = _previous_end_slope(slope, p, H0, M0, _direction_of(H0, H1), delta_prev,
+                                     k_points[..., 0])
     return jnp.concatenate([M_points, k_points, k_prev_end[..., None]], axis=-1)
 
 
@@ -330,7 +335,7 @@ def _sensitivity_loop(variant, p, H, names, with_H, substeps, batched):
     S = substeps
     K = 1 + len(names) + 2 * with_H
     H_t = jnp.moveaxis(H, -1, 0)
-    directions = jnp.where(H_t[1:] >= H_t[:-1], 1.0, -1.0)
+    directions = _direction(H_t)
 
     def step(carry, interval):
         M, delta_prev = carry
