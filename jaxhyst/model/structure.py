@@ -175,8 +175,9 @@ def structural_response(p: Parameters, h, forcing, uniform: bool):
     def body(x, step):
         s, w = step
         m = matrices(s)
-        # explicit 2×2 and 2×4 products: no BLAS call per step
-        x = (m[:, :2] * x).sum(-1) + (m[:, 2:] * w).sum(-1)
+        # the 2×2 and 2×4 products column by column: no BLAS call per step, and no
+        # reduction over a short axis (slow for a population, whose members lead)
+        x = m[:, 0] * x[0] + m[:, 1] * x[1] + sum(m[:, 2 + k] * w[k] for k in range(4))
         return x, x
 
     _, xs = jax.lax.scan(body, jnp.zeros((2,), dtype=forcing.dtype), (per_step, forcing))
