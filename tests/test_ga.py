@@ -249,3 +249,24 @@ def test_ctrl_c_stops_after_the_generation_keeps_best_and_resumes_exactly(
                             resume=True, report=False)
     np.testing.assert_array_equal(resumed.params.to_array(), gatr1_run.params.to_array())
     assert [h["generation"] for h in resumed.extra["history"]] == list(range(1, 11))
+
+
+def test_new_generation_counts_and_probabilities_reuse_the_compiled_generations(
+        problem, caplog):
+    import logging
+
+    first = dataclasses.replace(TINY, T1=2)  # two BCGA generations: the second reuses too
+    jh.run_hybrid(problem, "GATR1", seed=0, settings=first, report=False)
+    other = dataclasses.replace(first, T1=3, T2=4, pc=0.5, pm=0.3, beta=2.0, c1=1e-20)
+    with jax.log_compiles(), caplog.at_level(logging.WARNING):
+        res = jh.run_hybrid(problem, "GATR1", seed=0, settings=other, report=False)
+    compiled = [r.getMessage()[:80] for r in caplog.records
+                if r.getMessage().startswith("Compiling")]
+    assert compiled == []
+    history = res.extra["history"]
+    assert [h["phase"] for h in history] == ["BCGA"] * 3 + ["FCGA"] * 4
+    # the traced probabilities take effect: the same seed and generation counts with the
+    # default pc and pm breed another second generation
+    same_counts = dataclasses.replace(first, T1=3, T2=4)
+    base = jh.run_hybrid(problem, "GATR1", seed=0, settings=same_counts, report=False)
+    assert base.extra["history"][1]["mean_fitness"] != history[1]["mean_fitness"]

@@ -177,12 +177,14 @@ class GAState(eqx.Module):
 def initial_state(n: int, settings: GASettings, seed: int, step_size: float) -> GAState:
     key, k0 = jax.random.split(jax.random.PRNGKey(seed))
     genes = jax.random.bernoulli(k0, 0.5, (settings.q1, n, settings.bits)).astype(jnp.uint8)
-    i64 = jnp.zeros((), jnp.int64)
-    return GAState(key=key, genes=genes, U=jnp.zeros((settings.q2, n)), generation=i64,
-                   best_u=jnp.full((n,), 0.5), best_cost=jnp.asarray(jnp.inf),
+    # dtypes as the generations return them (none weakly typed): otherwise the second
+    # generation would compile its program again
+    i64, f64 = jnp.zeros((), jnp.int64), jnp.float64
+    return GAState(key=key, genes=genes, U=jnp.zeros((settings.q2, n), f64), generation=i64,
+                   best_u=jnp.full((n,), 0.5, f64), best_cost=jnp.asarray(jnp.inf, f64),
                    evaluations=i64, failures=i64, local_steps=i64,
-                   step_size=jnp.asarray(float(step_size)), last_local_u=jnp.zeros((n,)),
-                   has_last_local=jnp.asarray(False))
+                   step_size=jnp.asarray(float(step_size), f64),
+                   last_local_u=jnp.zeros((n,), f64), has_last_local=jnp.asarray(False))
 
 
 def _evaluate(problem, U, shard: bool = True):
@@ -200,6 +202,31 @@ def _record(problem, settings, state, population, costs, fitness, local):
             "evaluations": state.evaluations, "failures": state.failures, **local}
 
 
+class _Knobs(eqx.Module):
+    """The settings a generation reads as numbers, traced: a new T1, T2, pc, pm, β or c1
+    runs the compiled generation programs again instead of compiling new ones."""
+
+    T1: jax.Array
+    T: jax.Array  # T1 + T2
+    pc: jax.Array
+    pm: jax.Array
+    beta: jax.Array
+    c1: jax.Array
+
+
+def _split_settings(settings: GASettings):
+    """(the settings that shape a generation's program, static; `_Knobs`, traced). The
+    static part has the traced fields (and T3, check_steps, unused by a generation) set
+    to fixed values, so that it hashes the same for every value of them."""
+    s = settings
+    knobs = _Knobs(T1=jnp.asarray(s.T1, jnp.int64), T=jnp.asarray(s.generations, jnp.int64),
+                   pc=jnp.asarray(s.pc, float), pm=jnp.asarray(s.pm, float),
+                   beta=jnp.asarray(s.beta, float), c1=jnp.asarray(s.c1, float))
+    static = dataclasses.replace(s, T1=1, T2=0, T3=0, check_steps=0, pc=0.0, pm=0.0,
+                                 beta=1.0, c1=1.0)
+    return static, knobs
+
+
 def _no_local(cost):
     nan = jnp.asarray(jnp.nan)
     return {"local_ran": jnp.asarray(False), "local_skipped": jnp.asarray(False),
@@ -214,35 +241,40 @@ def _update_best(state, population, costs):
             jnp.where(better, costs[best], state.best_cost))
 
 
-@eqx.filter_jit
 def bcga_generation(problem: AbstractProblem, method: HybridGA, settings: GASettings,
                     state: GAState):
     """One BCGA generation (i ≤ T1): evaluate the binary population, keep the best,
-    reproduce; at i = T1 hand the q2 fittest to the FCGA. Returns (state, record)."""
-    s = settings
+    reproduce; at i = T1 hand the q2 fittest to the FCGA. Returns (state, record).
+    Compiled once per problem, method and population shape (T1, T2, pc, pm, β and c1
+    are traced)."""
+    return _bcga_generation(problem, method, *_split_settings(settings), state)
+
+
+@eqx.filter_jit
+def _bcga_generation(problem, method, s: GASettings, k_: _Knobs, state: GAState):
     i = state.generation + 1
     population = decode(state.genes)
-    costs = _evaluate(problem, population, settings.shard)
+    costs = _evaluate(problem, population, s.shard)
     bad = ~jnp.isfinite(costs)
     costs = jnp.where(bad, jnp.inf, costs)
-    fitness = problem.fitness_from_cost(costs, s.c1)
+    fitness = problem.fitness_from_cost(costs, k_.c1)
     best_u, best_cost = _update_best(state, population, costs)
     key, k = jax.random.split(state.key)
-    T = s.generations
+    T = k_.T
 
     def next_bcga(_):
-        genes = bcga_offspring(k, state.genes, fitness, s.pc, s.pm, elites=s.elites)
+        genes = bcga_offspring(k, state.genes, fitness, k_.pc, k_.pm, elites=s.elites)
         return genes, state.U
 
     def handover(_):
         top = jnp.argsort(costs, stable=True)[: s.q2]
         U = population[top]
-        U = jax.lax.cond(i < T, lambda U: fcga_offspring(k, U, fitness[top], i, T, s.pc, s.pm,
-                                                         s.beta, elites=s.elites),
+        U = jax.lax.cond(i < T, lambda U: fcga_offspring(k, U, fitness[top], i, T, k_.pc, k_.pm,
+                                                         k_.beta, elites=s.elites),
                          lambda U: U, U)
         return state.genes, U
 
-    genes, U = jax.lax.cond(i < s.T1, next_bcga, handover, None)
+    genes, U = jax.lax.cond(i < k_.T1, next_bcga, handover, None)
     new = eqx.tree_at(
         lambda st: (st.key, st.genes, st.U, st.generation, st.best_u, st.best_cost,
                     st.evaluations, st.failures),
@@ -252,16 +284,20 @@ def bcga_generation(problem: AbstractProblem, method: HybridGA, settings: GASett
                         _no_local(jnp.min(costs)))
 
 
-@eqx.filter_jit
 def fcga_generation(problem: AbstractProblem, method: HybridGA, settings: GASettings,
                     state: GAState):
     """One FCGA generation (i > T1): evaluate, run the local search from the best
-    (``inside`` placement), keep the best, reproduce. Returns (state, record)."""
-    s = settings
+    (``inside`` placement), keep the best, reproduce. Returns (state, record). Compiled
+    once per problem, method and population shape, as `bcga_generation`."""
+    return _fcga_generation(problem, method, *_split_settings(settings), state)
+
+
+@eqx.filter_jit
+def _fcga_generation(problem, method, s: GASettings, k_: _Knobs, state: GAState):
     i = state.generation + 1
-    T = s.generations
+    T = k_.T
     population = state.U
-    costs = _evaluate(problem, population, settings.shard)
+    costs = _evaluate(problem, population, s.shard)
     bad = ~jnp.isfinite(costs)
     costs = jnp.where(bad, jnp.inf, costs)
     best = jnp.argmin(costs)
@@ -295,10 +331,10 @@ def fcga_generation(problem: AbstractProblem, method: HybridGA, settings: GASett
         local = {"local_ran": ~unchanged, "local_skipped": unchanged, "local_code": code,
                  "local_steps": steps, "local_cost_before": local["local_cost_before"],
                  "local_cost_after": cost}
-    fitness = problem.fitness_from_cost(costs, s.c1)
+    fitness = problem.fitness_from_cost(costs, k_.c1)
     best_u, best_cost = _update_best(state, population, costs)
     key, k = jax.random.split(state.key)
-    U = jax.lax.cond(i < T, lambda U: fcga_offspring(k, U, fitness, i, T, s.pc, s.pm, s.beta,
+    U = jax.lax.cond(i < T, lambda U: fcga_offspring(k, U, fitness, i, T, k_.pc, k_.pm, k_.beta,
                                                      elites=s.elites),
                      lambda U: U, population)
     new = eqx.tree_at(
