@@ -251,30 +251,30 @@ def bcga_generation(problem: AbstractProblem, method: HybridGA, settings: GASett
 
 
 @eqx.filter_jit
-def _bcga_generation(problem, method, s: GASettings, k_: _Knobs, state: GAState):
+def _bcga_generation(problem, method, s: GASettings, knobs: _Knobs, state: GAState):
     i = state.generation + 1
     population = decode(state.genes)
     costs = _evaluate(problem, population, s.shard)
     bad = ~jnp.isfinite(costs)
     costs = jnp.where(bad, jnp.inf, costs)
-    fitness = problem.fitness_from_cost(costs, k_.c1)
+    fitness = problem.fitness_from_cost(costs, knobs.c1)
     best_u, best_cost = _update_best(state, population, costs)
     key, k = jax.random.split(state.key)
-    T = k_.T
+    T = knobs.T
 
     def next_bcga(_):
-        genes = bcga_offspring(k, state.genes, fitness, k_.pc, k_.pm, elites=s.elites)
+        genes = bcga_offspring(k, state.genes, fitness, knobs.pc, knobs.pm, elites=s.elites)
         return genes, state.U
 
     def handover(_):
         top = jnp.argsort(costs, stable=True)[: s.q2]
         U = population[top]
-        U = jax.lax.cond(i < T, lambda U: fcga_offspring(k, U, fitness[top], i, T, k_.pc, k_.pm,
-                                                         k_.beta, elites=s.elites),
+        U = jax.lax.cond(i < T, lambda U: fcga_offspring(k, U, fitness[top], i, T, knobs.pc,
+                                                         knobs.pm, knobs.beta, elites=s.elites),
                          lambda U: U, U)
         return state.genes, U
 
-    genes, U = jax.lax.cond(i < k_.T1, next_bcga, handover, None)
+    genes, U = jax.lax.cond(i < knobs.T1, next_bcga, handover, None)
     new = eqx.tree_at(
         lambda st: (st.key, st.genes, st.U, st.generation, st.best_u, st.best_cost,
                     st.evaluations, st.failures),
@@ -293,9 +293,9 @@ def fcga_generation(problem: AbstractProblem, method: HybridGA, settings: GASett
 
 
 @eqx.filter_jit
-def _fcga_generation(problem, method, s: GASettings, k_: _Knobs, state: GAState):
+def _fcga_generation(problem, method, s: GASettings, knobs: _Knobs, state: GAState):
     i = state.generation + 1
-    T = k_.T
+    T = knobs.T
     population = state.U
     costs = _evaluate(problem, population, s.shard)
     bad = ~jnp.isfinite(costs)
@@ -331,11 +331,11 @@ def _fcga_generation(problem, method, s: GASettings, k_: _Knobs, state: GAState)
         local = {"local_ran": ~unchanged, "local_skipped": unchanged, "local_code": code,
                  "local_steps": steps, "local_cost_before": local["local_cost_before"],
                  "local_cost_after": cost}
-    fitness = problem.fitness_from_cost(costs, k_.c1)
+    fitness = problem.fitness_from_cost(costs, knobs.c1)
     best_u, best_cost = _update_best(state, population, costs)
     key, k = jax.random.split(state.key)
-    U = jax.lax.cond(i < T, lambda U: fcga_offspring(k, U, fitness, i, T, k_.pc, k_.pm, k_.beta,
-                                                     elites=s.elites),
+    U = jax.lax.cond(i < T, lambda U: fcga_offspring(k, U, fitness, i, T, knobs.pc, knobs.pm,
+                                                     knobs.beta, elites=s.elites),
                      lambda U: U, population)
     new = eqx.tree_at(
         lambda st: (st.key, st.U, st.generation, st.best_u, st.best_cost, st.evaluations,
