@@ -199,6 +199,26 @@ def test_after_placement_runs_t3_local_steps(problem):
     assert res.cost <= after["cost_before"]
 
 
+def test_an_interruption_in_the_after_solve_returns_the_point_reached(problem, monkeypatch):
+    from jaxhyst._interrupt import _flag, interruptible
+    from jaxhyst.identify import hybrid
+
+    real = hybrid.stepped_solve
+
+    def interrupted(*args, **kwargs):
+        _flag["stop"] = True  # as a Ctrl-C when the final local solve starts
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(hybrid, "stepped_solve", interrupted)
+    with interruptible():
+        res = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False)
+    after = res.extra["after"]
+    assert res.result == "interrupted" and after["result"] == "interrupted"
+    assert after["steps"] == 1 and res.extra["convergence_check"] is None
+    assert np.isfinite(res.cost) and res.cost <= after["cost_before"]
+    assert len(res.extra["history"]) == SMALL.T1 + SMALL.T2  # the GA itself ran to its end
+
+
 class _FlakyProblem(jh.Problem):
     """A problem whose simulation 'diverges' (NaN cost) wherever u[0] > 0.5. The model
     itself stays finite throughout the Table 1 box (test_model), so failures are injected."""
@@ -251,13 +271,14 @@ def test_ctrl_c_stops_after_the_generation_keeps_best_and_resumes_exactly(
     assert [h["generation"] for h in resumed.extra["history"]] == list(range(1, 11))
 
 
-def test_new_generation_counts_and_probabilities_reuse_the_compiled_generations(
+def test_new_generation_counts_step_limits_and_probabilities_compile_nothing(
         problem, caplog):
     import logging
 
     first = dataclasses.replace(TINY, T1=2)  # two BCGA generations: the second reuses too
     jh.run_hybrid(problem, "GATR1", seed=0, settings=first, report=False)
-    other = dataclasses.replace(first, T1=3, T2=4, pc=0.5, pm=0.3, beta=2.0, c1=1e-20)
+    other = dataclasses.replace(first, T1=3, T2=4, pc=0.5, pm=0.3, beta=2.0, c1=1e-20,
+                                check_steps=7)
     with jax.log_compiles(), caplog.at_level(logging.WARNING):
         res = jh.run_hybrid(problem, "GATR1", seed=0, settings=other, report=False)
     compiled = [r.getMessage()[:80] for r in caplog.records

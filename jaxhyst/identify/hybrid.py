@@ -63,7 +63,7 @@ from .._interrupt import interruptible
 from ..names import HYBRID_NAMES
 from ..sharding import map_sharded, shardable
 from .ga import bcga_offspring, decode, fcga_offspring
-from .local import CODES, run_local, summarize
+from .local import CODES, run_local, stepped_solve, summarize
 from .problem import AbstractProblem
 from .result import IdentificationResult, Outcome
 from .solvers import initial_step_size, make_solver, solver_name, with_initial_step_size
@@ -346,9 +346,14 @@ def _fcga_generation(problem, method, s: GASettings, knobs: _Knobs, state: GASta
     return new, _record(problem, s, new, population, costs, fitness, local)
 
 
-@eqx.filter_jit
-def _local(problem, solver, u, max_steps):
-    return run_local(problem, solver, z_from_u(u), max_steps)
+def _final_solve(problem, solver, z0, max_steps: int, progress: int, label: str):
+    """The ``after`` placement's solve or the convergence check, from z0, on the stepped
+    driver: its step limit is data (a new T3 or check_steps compiles nothing), it reports
+    progress with the run's, and an interruption returns the point reached. Returns
+    (z, code, steps, cost, interrupted) as Python values (z an array)."""
+    (z, code, steps, cost, _, _), stopped = stepped_solve(
+        problem, solver, z0[None], max_steps, bool(progress), label)
+    return z[0], int(code[0]), int(steps[0]), float(cost[0]), stopped
 
 
 # -- checkpoints -----------------------------------------------------------------------------
@@ -457,8 +462,9 @@ def run_hybrid(problem: AbstractProblem, method: str | HybridGA = "GATR1", seed:
     - ``seed``: everything random derives from ``jax.random.PRNGKey(seed)``; the same seed
       on the same machine gives the identical result (also across a resume).
     - ``settings``: `GASettings` (paper defaults).
-    - ``progress``: print a line to stderr every ``progress`` generations (True = 10), and
-      what is being compiled before the first generation.
+    - ``progress``: print a line to stderr every ``progress`` generations (True = 10),
+      what is being compiled before the first generation, and the final local solve's
+      and the convergence check's steps every 2 s.
     - ``checkpoint``: path of an ``.npz`` written atomically every ``checkpoint_every``
       generations and on interruption; ``resume=True`` continues from it (it must exist
       and belong to the same problem, method, settings and seed).
@@ -466,8 +472,10 @@ def run_hybrid(problem: AbstractProblem, method: str | HybridGA = "GATR1", seed:
     - ``shard``: overrides ``settings.shard`` (split each generation's population over
       all devices when it divides evenly; results are the same either way).
 
-    The first Ctrl-C (or SIGTERM) stops at the end of the current generation and returns
-    the best so far (outcome ``interrupted``); a second one stops at once.
+    The first Ctrl-C (or SIGTERM) stops at the end of the current generation (in the
+    ``after`` placement's solve or the convergence check: after the current chunk of
+    steps) and returns the best so far (outcome ``interrupted``); a second one stops at
+    once.
 
     **Returns:** an `IdentificationResult` whose ``extra`` holds ``history`` (one dict
     per generation), ``evaluations``, ``failures``, ``local_steps``, ``after`` (the
@@ -548,22 +556,26 @@ def run_hybrid(problem: AbstractProblem, method: str | HybridGA = "GATR1", seed:
             if every:
                 say(f"local search ({solver_name(method.local_solver)}, up to {s.T3} steps) …")
             solver = with_initial_step_size(method.local_solver, start_step)
-            z, code, lsteps, cost, _ = _local(problem, solver, best_u, s.T3)
-            local_steps += int(lsteps)
-            after_info = {"result": CODES[int(code)].value, "steps": int(lsteps),
-                          "cost_before": float(state.best_cost), "cost_after": float(cost)}
-            if np.isfinite(float(cost)) and float(cost) <= float(state.best_cost):
+            z, code, lsteps, cost, stopped = _final_solve(problem, solver, z_best, s.T3,
+                                                          every, f"{label} local")
+            local_steps += lsteps
+            after_info = {"result": (Outcome.interrupted if stopped else CODES[code]).value,
+                          "steps": lsteps, "cost_before": float(state.best_cost),
+                          "cost_after": cost}
+            if np.isfinite(cost) and cost <= float(state.best_cost):
                 z_best = z
+            if stopped:
+                interrupted, outcome = True, Outcome.interrupted
         if not interrupted and s.check_steps and not stop():
             checker = make_solver("lm")
             if every:
                 say(f"convergence check ({solver_name(checker)}, up to {s.check_steps} "
                     "steps) …")
             before = float(_cost_at(problem, z_best))
-            z, code, csteps, cost, _ = _local(problem, checker, u_from_z(z_best), s.check_steps)
-            cost = float(cost)
-            outcome = CODES[int(code)]
-            check_info = {"result": outcome.value, "steps": int(csteps),
+            z, code, csteps, cost, stopped = _final_solve(problem, checker, z_best,
+                                                          s.check_steps, every, f"{label} check")
+            outcome = Outcome.interrupted if stopped else CODES[code]
+            check_info = {"result": outcome.value, "steps": csteps,
                           "cost_before": before, "cost_after": cost}
             if np.isfinite(cost) and cost < before:
                 z_best = z
