@@ -199,7 +199,8 @@ def test_after_placement_runs_t3_local_steps(problem):
     assert res.cost <= after["cost_before"]
 
 
-def test_an_interruption_in_the_after_solve_returns_the_point_reached(problem, monkeypatch):
+def test_an_interruption_in_the_after_solve_returns_the_point_reached(problem, monkeypatch,
+                                                                     tmp_path):
     from jaxhyst._interrupt import _flag, interruptible
     from jaxhyst.identify import hybrid
 
@@ -209,14 +210,24 @@ def test_an_interruption_in_the_after_solve_returns_the_point_reached(problem, m
         _flag["stop"] = True  # as a Ctrl-C when the final local solve starts
         return real(*args, **kwargs)
 
+    path = tmp_path / "after.npz"
     monkeypatch.setattr(hybrid, "stepped_solve", interrupted)
     with interruptible():
-        res = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False)
+        res = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False,
+                            checkpoint=path, checkpoint_every=100)
+    monkeypatch.setattr(hybrid, "stepped_solve", real)
     after = res.extra["after"]
     assert res.result == "interrupted" and after["result"] == "interrupted"
     assert after["steps"] == 1 and res.extra["convergence_check"] is None
     assert np.isfinite(res.cost) and res.cost <= after["cost_before"]
     assert len(res.extra["history"]) == SMALL.T1 + SMALL.T2  # the GA itself ran to its end
+    # the completed GA was saved: a resume runs only the final solves, and ends as an
+    # uninterrupted run does
+    resumed = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False,
+                            checkpoint=path, resume=True)
+    whole = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False)
+    assert resumed.extra["history"][-1]["generation"] == SMALL.T1 + SMALL.T2
+    np.testing.assert_array_equal(resumed.params.to_array(), whole.params.to_array())
 
 
 class _FlakyProblem(jh.Problem):

@@ -564,8 +564,12 @@ def run_hybrid(problem: AbstractProblem, method: str | HybridGA = "GATR1", seed:
                           "cost_after": cost}
             if np.isfinite(cost) and cost <= float(state.best_cost):
                 z_best = z
-            if stopped:
+            if stopped:  # the GA itself is complete: a resume starts at this solve
                 interrupted, outcome = True, Outcome.interrupted
+                save(state, history)
+                if every:
+                    say("interrupted in the local search; returning the best so far"
+                        + (f" (checkpoint {checkpoint})" if checkpoint else ""))
         if not interrupted and s.check_steps and not stop():
             checker = make_solver("lm")
             if every:
