@@ -520,6 +520,12 @@ def run_hybrid(problem: AbstractProblem, method: str | HybridGA = "GATR1", seed:
     def say(text):
         print(f"[{label}] {text}", file=sys.stderr, flush=True)
 
+    def stopped_in(where):  # an interruption: the state reached goes to the checkpoint
+        save(state, history)
+        if every:
+            say(f"interrupted {where}; returning the best so far"
+                + (f" (checkpoint {checkpoint})" if checkpoint else ""))
+
     t0 = time.perf_counter()
     interrupted = False
     with interruptible() as stop:
@@ -542,10 +548,7 @@ def run_hybrid(problem: AbstractProblem, method: str | HybridGA = "GATR1", seed:
                 interrupted = True
                 break
         if interrupted:
-            save(state, history)
-            if every:
-                say(f"interrupted after generation {int(state.generation)}; returning the "
-                    "best so far" + (f" (checkpoint {checkpoint})" if checkpoint else ""))
+            stopped_in(f"after generation {int(state.generation)}")
         best_u = state.best_u
         z_best = z_from_u(best_u)
         local_steps = int(state.local_steps)
@@ -566,10 +569,7 @@ def run_hybrid(problem: AbstractProblem, method: str | HybridGA = "GATR1", seed:
                 z_best = z
             if stopped:  # the GA itself is complete: a resume starts at this solve
                 interrupted, outcome = True, Outcome.interrupted
-                save(state, history)
-                if every:
-                    say("interrupted in the local search; returning the best so far"
-                        + (f" (checkpoint {checkpoint})" if checkpoint else ""))
+                stopped_in("in the local search")
         if not interrupted and s.check_steps and not stop():
             checker = make_solver("lm")
             if every:
@@ -583,6 +583,8 @@ def run_hybrid(problem: AbstractProblem, method: str | HybridGA = "GATR1", seed:
                           "cost_before": before, "cost_after": cost}
             if np.isfinite(cost) and cost < before:
                 z_best = z
+            if stopped:
+                stopped_in("in the convergence check")
         elif not interrupted and s.check_steps:
             outcome = Outcome.interrupted
         elif not interrupted:  # no convergence test: the run only reached its limit
