@@ -44,7 +44,8 @@ class JAVariant(eqx.Module):
     allows; False forces the purely reversible branch. The integrator uses it to step
     exactly up to the point where δM switches on after a field reversal (a kink in dM/dH).
     ``distance_to_switch`` returns δ·(Man − M): the irreversible term is active where it
-    is > 0.
+    is > 0, so where it is ≤ 0 the slope must not depend on ``pinning`` (the integrator
+    reuses the slope it evaluated there with pinning as the reversible one).
 
     ``parameters`` names the `Parameters` fields the slope depends on (the derivative rule
     of the time loop differentiates with respect to those only); a variant that reads
