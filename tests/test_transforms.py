@@ -100,18 +100,19 @@ def _plain_path(p, H, variant, substeps):
 @pytest.mark.parametrize("variant", [
     jh.EnergyBasedJA(),
     pytest.param(jh.ClassicJA(), marks=pytest.mark.slow),
+    pytest.param(jh.VenkataramanJA(), marks=pytest.mark.slow),
     pytest.param(jh.PopJA(), marks=pytest.mark.slow),
-], ids=["energy", "classic", "pop"])
+], ids=["energy", "classic", "venkataraman", "pop"])
 def test_custom_rule_equals_plain_ad_of_the_scan_in_every_mode(variant):
     # plain AD of the scan compiles slowly: a short drive with reversals and switches
     drive = jh.sinusoidal_field(100.0, 3e4, 5e3, samples_per_period=16)
     H = drive.H
     p0 = jh.TABLE3[10]
 
-    def params(x):
-        return p0.replace(a=x[0], k=x[1], alpha=x[2], c=x[3])
+    def params(x):  # Ms with α̃: the rule forms ∂/∂Ms from ∂/∂α̃ where the form allows
+        return p0.replace(a=x[0], k=x[1], alpha=x[2], c=x[3], Ms=x[4])
 
-    x = jnp.array([7012.0, 3283.0, -0.01, 0.18])
+    x = jnp.array([7012.0, 3283.0, -0.01, 0.18, 7.65e5])
 
     def loss(path, x, H):
         M, k = path(params(x), H, variant, 2)
@@ -126,7 +127,32 @@ def test_custom_rule_equals_plain_ad_of_the_scan_in_every_mode(variant):
         assert float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))) < 1e-11
     J1 = jax.jit(jax.jacfwd(lambda x: custom(params(x), H, variant, 2)[0]))(x)
     J2 = jax.jit(jax.jacfwd(lambda x: _plain_path(params(x), H, variant, 2)[0]))(x)
-    assert float(jnp.max(jnp.abs(J1 - J2)) / jnp.max(jnp.abs(J2))) < 1e-11
+    # column by column: each parameter's derivative on its own scale
+    error = jnp.max(jnp.abs(J1 - J2), axis=(0, 1)) / jnp.max(jnp.abs(J2), axis=(0, 1))
+    assert float(jnp.max(error)) < 1e-11, error
+
+
+@pytest.mark.parametrize("form", [jh.EnergyBasedJA, jh.ClassicJA, jh.VenkataramanJA])
+def test_the_Ms_derivative_from_the_scaling_symmetry_equals_its_own_tangent(form):
+    class WithoutSymmetry(form):
+        scales_with_Ms = False
+
+    assert form.scales_with_Ms and not jh.PopJA.scales_with_Ms
+    drive = jh.sinusoidal_field(100.0, 3e4, 5e3, samples_per_period=24)
+    x = jh.TABLE3[10].to_array()
+
+    def jacobian(variant):
+        def outputs(x):
+            M, k = mag.magnetization_path(jh.Parameters.from_array(x), drive.H,
+                                          variant=variant, substeps=2)
+            return jnp.concatenate([M.ravel(), k.ravel()])
+        return jax.jit(jax.jacfwd(outputs))(x)
+
+    J1, J2 = jacobian(form()), jacobian(WithoutSymmetry())
+    i = jh.Parameters.names.index("Ms")
+    assert float(jnp.max(jnp.abs(J2[:, i]))) > 0
+    assert float(jnp.max(jnp.abs(J1[:, i] - J2[:, i])) / jnp.max(jnp.abs(J2[:, i]))) < 1e-12
+    assert float(jnp.max(jnp.abs(J1 - J2)) / jnp.max(jnp.abs(J2))) < 1e-12
 
 
 def test_second_derivatives_match_differences_of_the_gradient():

@@ -50,9 +50,16 @@ class JAVariant(eqx.Module):
     ``parameters`` names the `Parameters` fields the slope depends on (the derivative rule
     of the time loop differentiates with respect to those only); a variant that reads
     other fields must list them.
+
+    ``scales_with_Ms``: True if the slope has the form dM/dH = Ms·g(H, M/Ms) with g
+    depending on Ms only through α̃·Ms (and on the other parameters), as in the three
+    forms here with a δM switch. The magnetization path is then Ms times a function of
+    α̃·Ms, and the derivative rule forms ∂/∂Ms from ∂/∂α̃ instead of carrying a tangent
+    for it. Leave it False (the default) unless that holds exactly.
     """
 
     parameters: ClassVar[tuple[str, ...]] = ("Ms", "a", "k", "alpha", "c")
+    scales_with_Ms: ClassVar[bool] = False
 
     @abc.abstractmethod
     def slope(self, H, M, delta, p: Parameters, pinning=True):
@@ -115,6 +122,8 @@ class EnergyBasedJA(AnhystereticForm):
     pinning term is overwhelmed) the irreversible part is taken as 0 rather than negative.
     """
 
+    scales_with_Ms: ClassVar[bool] = True
+
     def slope_from_anhysteretic(self, M, delta, p: Parameters, Man, dMan, pinning=True):
         D = Man - M
         one_minus_c = 1.0 - p.c
@@ -139,6 +148,8 @@ class ClassicJA(AnhystereticForm):
     the same equation, term by term. Unlike the energy-based form, c = 1 still leaves a
     hysteretic (irreversible) part.
     """
+
+    scales_with_Ms: ClassVar[bool] = True
 
     def slope_from_anhysteretic(self, M, delta, p: Parameters, Man, dMan, pinning=True):
         D = Man - M
@@ -166,6 +177,8 @@ class VenkataramanJA(AnhystereticForm):
     not defined; the simulation then returns non-finite values, which identification
     treats as a failed individual.
     """
+
+    scales_with_Ms: ClassVar[bool] = True
 
     def slope_from_anhysteretic(self, M, delta, p: Parameters, Man, dMan, pinning=True):
         D = Man - M

@@ -331,9 +331,15 @@ def _interval_outputs(variant, p, H0, H1, M0, delta_prev, substeps, batched=Fals
     return jnp.concatenate([M_points, k_points, k_prev_end[..., None]], axis=-1)
 
 
-#: Tangents per SIMD register (four float64 on AVX2): one trajectory's tangent count is
-#: padded to a multiple of it (measured in benchmarks/RESULTS.md, issue 13).
+#: Tangents per SIMD register (four float64 on AVX2).
 _LANES = 4
+
+
+def _lanes(K: int) -> int:
+    """Tangent lanes for K tangents of one trajectory: K padded with zero tangents to a
+    whole number of SIMD registers where two or three would be left over beyond the
+    first register (K = 6, 7: 8), else K itself (measured in benchmarks/RESULTS.md)."""
+    return -(-K // _LANES) * _LANES if K > _LANES and K % _LANES >= 2 else K
 
 
 def _sensitivity_loop(variant, p, H, names, with_H, substeps, batched):
@@ -366,7 +372,7 @@ def _sensitivity_loop(variant, p, H, names, with_H, substeps, batched):
 
         # one trajectory: the K tangents are the vector axis, padded with zero tangents
         # to a whole number of SIMD registers (a batch is vectorized over its members)
-        lanes = K if batched else -(-K // _LANES) * _LANES
+        lanes = K if batched else _lanes(K)
         eye = jnp.eye(lanes, K, dtype=H.dtype)
         basis = jnp.broadcast_to(eye[:, None, :], (lanes, *z.shape)) if batched else eye
         out, partials = jax.vmap(lambda t: jax.jvp(outputs, (z,), (t,)),
@@ -393,6 +399,15 @@ def _sensitivity_scan(variant, p, H, names, with_H, substeps):
     return _SENSITIVITY[key](variant, p, H)
 
 
+def _Ms_column(p, out, column_M, column_alpha, substeps):
+    """∂(outputs)/∂Ms of each interval, shape (N, 2S + 1), for a variant with
+    ``scales_with_Ms``: every output is Ms·ψ(M_n/Ms, α̃·Ms, …) of the interval's start
+    M_n, so ∂/∂Ms = (output − M_n·∂/∂M_n + α̃·∂/∂α̃)/Ms."""
+    M_start = jnp.concatenate([jnp.zeros_like(out[:1, substeps - 1]),
+                               out[:-1, substeps - 1]])
+    return (out - M_start[:, None] * column_M + p.alpha * column_alpha) / p.Ms
+
+
 @magnetization_path.def_jvp
 def _magnetization_path_jvp(primals, tangents, *, variant, substeps):
     p, H = primals
@@ -403,9 +418,17 @@ def _magnetization_path_jvp(primals, tangents, *, variant, substeps):
     with_H = H_dot is not None
     if not names and not with_H:
         return magnetization_path(p, H, variant=variant, substeps=substeps), (None, None)
-    out, partials = _sensitivity_scan(variant, p, H, names, with_H, S)
+    # with the Ms–α̃ symmetry, ∂/∂Ms is formed from ∂/∂α̃ (one tangent fewer in the loop)
+    by_symmetry = variant.scales_with_Ms and "Ms" in names
+    looped = tuple(n for n in variant.parameters
+                   if (n in names and not (by_symmetry and n == "Ms"))
+                   or (by_symmetry and n == "alpha"))
+    out, partials = _sensitivity_scan(variant, p, H, looped, with_H, S)
+    column = {n: partials[..., 1 + i] for i, n in enumerate(looped)}
+    if by_symmetry:
+        column["Ms"] = _Ms_column(p, out, partials[..., 0], column["alpha"], S)
     # r = (partials of the inputs other than M_n) · (their tangents), per interval
-    r = sum(partials[..., 1 + i] * getattr(p_dot, n) for i, n in enumerate(names))
+    r = sum(column[n] * getattr(p_dot, n) for n in names)
     if with_H:
         r = r + partials[..., -2] * H_dot[:-1, None] + partials[..., -1] * H_dot[1:, None]
     a = partials[..., 0]
