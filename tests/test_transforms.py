@@ -137,7 +137,12 @@ def test_the_Ms_derivative_from_the_scaling_symmetry_equals_its_own_tangent(form
     class WithoutSymmetry(form):
         scales_with_Ms = False
 
+    class Redefined(form):  # a user's own slope does not inherit the claim
+        def slope_from_anhysteretic(self, M, delta, p, Man, dMan, pinning=True):
+            return super().slope_from_anhysteretic(M, delta, p, Man, dMan, pinning)
+
     assert form.scales_with_Ms and not jh.PopJA.scales_with_Ms
+    assert not Redefined.scales_with_Ms
     drive = jh.sinusoidal_field(100.0, 3e4, 5e3, samples_per_period=24)
     x = jh.TABLE3[10].to_array()
 

@@ -55,11 +55,18 @@ class JAVariant(eqx.Module):
     depending on Ms only through α̃·Ms (and on the other parameters), as in the three
     forms here with a δM switch. The magnetization path is then Ms times a function of
     α̃·Ms, and the derivative rule forms ∂/∂Ms from ∂/∂α̃ instead of carrying a tangent
-    for it. Leave it False (the default) unless that holds exactly.
+    for it. Leave it False (the default) unless that holds exactly; a subclass that
+    redefines the slope and does not set it again gets False.
     """
 
     parameters: ClassVar[tuple[str, ...]] = ("Ms", "a", "k", "alpha", "c")
     scales_with_Ms: ClassVar[bool] = False
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        redefined = {"slope", "slope_from_anhysteretic", "evaluate", "distance_to_switch"}
+        if "scales_with_Ms" not in cls.__dict__ and redefined & set(cls.__dict__):
+            cls.scales_with_Ms = False
 
     @abc.abstractmethod
     def slope(self, H, M, delta, p: Parameters, pinning=True):
