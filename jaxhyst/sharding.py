@@ -5,7 +5,13 @@ With several devices (GPUs, or CPU host devices via
 divisible by the device count is placed with a `jax.sharding.NamedSharding` over a 1-D
 mesh; the jitted, vmapped evaluation then runs SPMD, each device computing its share.
 Each member's computation is independent, so the result is the same as unsharded (the
-tests check it). On one device nothing changes.
+tests check it). On one device nothing changes. For a batch that runs the time loop (a
+population), placing it is the slow way: the loop's batch-wide tests (does any member
+need the located switch at this interval?) then become cross-device reductions at every
+interval — on two CPU host devices 689 against 230 ns per individual·sample on one
+device at P = 120, 271 against 198 ns with `map_sharded` at P = 1000.
+`map_sharded` gives each device its own block and its own tests (the GA evaluates its
+populations so).
 
 `map_sharded` splits a batch axis inside a traced computation instead (`JointProblem`'s
 loops axis, so that one local solve uses every device); under an outer ``vmap`` (a GA

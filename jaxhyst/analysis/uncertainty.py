@@ -213,7 +213,9 @@ def _fit_many(problem, datas, lowers, uppers, start, solver, max_steps, batch_si
             if pad:
                 chunk = [jax.tree.map(lambda a, pad=pad: np.concatenate(
                     [a, np.repeat(a[-1:], pad, axis=0)]), x) for x in chunk]
-            sharding = batch_sharding(batch_size, shard)
+            # only on request: placed on a sharding, the batched time loop's batch-wide
+            # tests become cross-device reductions at every interval (benchmarks/RESULTS.md)
+            sharding = batch_sharding(batch_size, True) if shard else None
             args = [jax.tree.map(lambda a, s=sharding: place(jnp.asarray(a), s), x) for x in chunk]
             res = _fit_batch(problem, solver_, *args, z0, max_steps)
             for acc, r in zip(out, res, strict=True):
@@ -231,8 +233,10 @@ def fit_replicates(problem, datasets, start, solver: str = "lm", max_steps: int 
                    shard: bool | None = None) -> dict:
     """Fit each replicate of ``datasets`` (the problem's observations stacked along a new
     first axis: R × N for a single-signal problem) from ``start``, in vmapped batches of
-    ``batch_size`` (spread over the devices when there are several and ``batch_size``
-    divides evenly, see `jaxhyst.sharding`).
+    ``batch_size``. ``shard=True`` spreads each batch over the devices (``batch_size`` a
+    multiple of the device count, see `jaxhyst.sharding`); the default (None or False)
+    does not: on two CPU host devices 16 replicate fits took 0.54 s sharded against
+    0.14 s on one (benchmarks/RESULTS.md).
 
     Returns a dict of NumPy arrays: ``values`` and ``std_errors`` (R × n_free, SI, in the
     order of ``problem.space.names``; standard errors assume every free parameter is
