@@ -420,9 +420,8 @@ def _magnetization_path_jvp(primals, tangents, *, variant, substeps):
         return magnetization_path(p, H, variant=variant, substeps=substeps), (None, None)
     # with the Ms–α̃ symmetry, ∂/∂Ms is formed from ∂/∂α̃ (one tangent fewer in the loop)
     by_symmetry = variant.scales_with_Ms and "Ms" in names
-    looped = tuple(n for n in variant.parameters
-                   if (n in names and not (by_symmetry and n == "Ms"))
-                   or (by_symmetry and n == "alpha"))
+    wanted = (set(names) - {"Ms"}) | {"alpha"} if by_symmetry else set(names)
+    looped = tuple(n for n in variant.parameters if n in wanted)
     out, partials = _sensitivity_scan(variant, p, H, looped, with_H, S)
     column = {n: partials[..., 1 + i] for i, n in enumerate(looped)}
     if by_symmetry:
