@@ -230,6 +230,30 @@ def test_an_interruption_in_the_after_solve_returns_the_point_reached(problem, m
     np.testing.assert_array_equal(resumed.params.to_array(), whole.params.to_array())
 
 
+def test_an_interruption_before_the_convergence_check_saves_and_says_so(problem, monkeypatch,
+                                                                       tmp_path, capsys):
+    from jaxhyst._interrupt import _flag, interruptible
+    from jaxhyst.identify import hybrid
+
+    real = hybrid.stepped_solve
+
+    def then_interrupted(*args, **kwargs):
+        out = real(*args, **kwargs)
+        _flag["stop"] = True  # as a Ctrl-C right after the final local solve ended
+        return out
+
+    path = tmp_path / "check.npz"
+    monkeypatch.setattr(hybrid, "stepped_solve", then_interrupted)
+    with interruptible():
+        res = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False,
+                            checkpoint=path, checkpoint_every=100, progress=100)
+    assert res.result == "interrupted" and res.extra["convergence_check"] is None
+    assert res.extra["after"]["result"] != "interrupted"
+    assert path.exists()
+    err = capsys.readouterr().err
+    assert "interrupted before the convergence check" in err and "done:" not in err
+
+
 class _FlakyProblem(jh.Problem):
     """A problem whose simulation 'diverges' (NaN cost) wherever u[0] > 0.5. The model
     itself stays finite throughout the Table 1 box (test_model), so failures are injected."""

@@ -194,7 +194,7 @@ def _evaluate(problem, U, shard: bool = True):
     return map_sharded(jax.vmap(problem.cost_u), P, shard and shardable(P))(U)
 
 
-def _record(problem, settings, state, population, costs, fitness, local):
+def _record(state, costs, fitness, local):
     finite = jnp.isfinite(costs)
     mean = jnp.sum(jnp.where(finite, fitness, 0.0)) / jnp.maximum(jnp.sum(finite), 1)
     return {"best_cost": state.best_cost, "best_fitness": jnp.max(fitness),
@@ -280,8 +280,7 @@ def _bcga_generation(problem, method, s: GASettings, knobs: _Knobs, state: GASta
                     st.evaluations, st.failures),
         state, (key, genes, U, i, best_u, best_cost,
                 state.evaluations + population.shape[0], state.failures + jnp.sum(bad)))
-    return new, _record(problem, s, new, population, costs, fitness,
-                        _no_local(jnp.min(costs)))
+    return new, _record(new, costs, fitness, _no_local(jnp.min(costs)))
 
 
 def fcga_generation(problem: AbstractProblem, method: HybridGA, settings: GASettings,
@@ -343,7 +342,7 @@ def _fcga_generation(problem, method, s: GASettings, knobs: _Knobs, state: GASta
                     st.has_last_local),
         state, (key, U, i, best_u, best_cost, state.evaluations + population.shape[0],
                 state.failures + jnp.sum(bad), local_steps, step_size, last_u, has_last))
-    return new, _record(problem, s, new, population, costs, fitness, local)
+    return new, _record(new, costs, fitness, local)
 
 
 def _final_solve(problem, solver, z0, max_steps: int, progress: int, label: str):
@@ -585,8 +584,9 @@ def run_hybrid(problem: AbstractProblem, method: str | HybridGA = "GATR1", seed:
                 z_best = z
             if stopped:
                 stopped_in("in the convergence check")
-        elif not interrupted and s.check_steps:
-            outcome = Outcome.interrupted
+        elif not interrupted and s.check_steps:  # stopped before the check began
+            interrupted, outcome = True, Outcome.interrupted
+            stopped_in("before the convergence check")
         elif not interrupted:  # no convergence test: the run only reached its limit
             outcome = (Outcome(after_info["result"]) if after_info is not None
                        else Outcome.max_steps_reached)
