@@ -277,3 +277,23 @@ def test_stepped_local_solve_iterates_like_optimistix_and_stops_when_interrupted
         _flag["stop"] = True  # as a Ctrl-C during the first chunk of steps
         res = jh.identify.solve(problem, _start(problem), solver=solver)
     assert res.result == "interrupted" and res.steps == 1 and np.isfinite(res.cost)
+
+
+@pytest.mark.parametrize("solver", ["lm", "tra"])
+def test_the_cost_at_the_end_is_that_of_the_end_point_also_before_any_accepted_step(problem,
+                                                                                    solver):
+    """A Gauss–Newton solve reports the residuals its state holds at the accepted point
+    (no evaluation compiled at the end); with no accepted step (step limit 0) there are
+    none in the state, and the end point is evaluated instead."""
+    from jaxhyst.identify.local import _evaluate_at, start_z
+
+    for max_steps in (0, 1, 5):
+        res = jh.identify.solve(problem, _start(problem), solver=solver, max_steps=max_steps)
+        assert res.steps == max_steps
+        z = start_z(problem, np.asarray(problem.space.u_from_params(res.params)))
+        cost, residuals = _evaluate_at(problem, z)
+        assert res.cost == pytest.approx(float(cost), rel=1e-9), max_steps
+        e = np.concatenate([np.ravel(r) for r in residuals])
+        assert res.rms_error == pytest.approx(float(np.sqrt(np.mean(e**2))), rel=1e-9)
+    assert res.cost < jh.identify.solve(problem, _start(problem), solver=solver,
+                                        max_steps=0).cost

@@ -20,7 +20,7 @@ import optimistix as optx
 
 from .problem import AbstractProblem
 from .result import IdentificationResult, Outcome, bound_status
-from .solvers import BoxTermination, final_step_size, make_solver, solver_name
+from .solvers import BoxTermination, accepted_residuals, final_step_size, make_solver, solver_name
 from .space import u_from_z, z_from_u
 
 #: Result codes of `run_local` (int arrays, so that they vmap).
@@ -166,10 +166,26 @@ def _finish_one(problem, solver, static, carry):
     result = optx.RESULTS.where((result == optx.RESULTS.successful) & ~term,
                                 optx.RESULTS.nonlinear_max_steps_reached, result)
     y, _, _ = solver.postprocess(fn, y, None, None, options, state, _TAGS, result)
-    # cost and group residuals at the end for `summarize`, in this program: a separate
-    # evaluation would compile the simulation once more
-    cost, residuals = _evaluation(problem, y)
-    return y, _code(result), steps, cost, final_step_size(state), residuals
+    # cost and group residuals at the end for `summarize`: a Gauss–Newton state holds the
+    # residual vector at its accepted point (no simulation in this program, which would
+    # compile it once more); other solvers evaluate the problem here
+    r = accepted_residuals(state)
+    if r is None:
+        cost, residuals = _evaluation(problem, y)
+        residuals, known = tuple(jnp.ravel(e) for e in residuals), jnp.array(True)
+    else:
+        known = state.num_accepted_steps > 0  # (before: placeholder zeros; see below)
+        cost, residuals = jnp.sum(r**2), _split_groups(problem, r)
+    return y, _code(result), steps, cost, final_step_size(state), residuals, known
+
+
+def _split_groups(problem, r):
+    """The group residuals (each group's unit, flattened) in a residual vector ``r``."""
+    out, i = [], 0
+    for g in problem.groups:
+        out.append(r[i:i + g.size] * g.normaliser)
+        i += g.size
+    return tuple(out)
 
 
 _running_jit = jax.jit(_running)  # (op by op, each operation would compile on its own)
@@ -203,8 +219,8 @@ def _say(label, text, live=False):
 def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int,
                   progress: float | bool = False, label: str = "local"):
     """Solve from each start of ``z0s`` (K, n) in one vmapped batch, stepped from Python;
-    returns (z, code, steps, cost, final step size, group residuals) batched over K and
-    whether it was interrupted. ``progress``: seconds between progress lines on stderr
+    returns (z, code, steps, cost, final step size, group residuals flattened) batched
+    over K and whether it was interrupted. ``progress``: seconds between progress lines on stderr
     (True = 2 s; a live line on a terminal). Ctrl-C/SIGTERM (`jaxhyst._interrupt`) stops
     after the current chunk of steps with the points reached."""
     from .._interrupt import interruptible
@@ -233,7 +249,16 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int,
             if stop():
                 interrupted = True
                 break
-    out = _finish_jit(problem, solver, static, carry)
+    *out, known = _finish_jit(problem, solver, static, carry)
+    missing = np.flatnonzero(~np.asarray(known))  # solves that accepted no step
+    if missing.size:
+        out[3], out[5] = np.array(out[3]), [np.array(r) for r in out[5]]
+        for k in missing:
+            cost, residuals = _evaluate_at(problem, out[0][k])
+            out[3][k] = float(cost)
+            for r, e in zip(out[5], residuals, strict=True):
+                r[k] = np.ravel(e)
+    out = tuple(out)
     if every:
         steps = int(np.max(np.asarray(out[2])))
         _say(label, f"{'interrupted at' if interrupted else 'done after'} {steps} steps, "

@@ -14,7 +14,8 @@ Any Optimistix least-squares solver or minimiser object may be passed instead of
 
 **Optimistix state read here** (public classes, private state layout; tested with
 optimistix 0.1.0, pinned ``>=0.1.0,<0.2``; `tests/test_identify.py` checks both): the
-Gauss–Newton family's state fields ``first_step``, ``num_accepted_steps``, ``f_info``,
+Gauss–Newton family's state fields ``first_step``, ``num_accepted_steps``, ``f_info``
+(its residual at the accepted point, for the cost at the end of a solve),
 ``terminate`` (by `BoxTermination`), and ``search_state.step_size`` of a finished solve
 (the damping or radius a hybrid carries to its next local search).
 """
@@ -305,6 +306,17 @@ class BoxTermination(optx.AbstractLeastSquaresSolver):
 
     def postprocess(self, fn, y, aux, args, options, state, tags, result):
         return self.inner.postprocess(fn, y, aux, args, options, state, tags, result)
+
+
+def accepted_residuals(state):
+    """The residual vector at the accepted point of a Gauss–Newton-family state (the
+    point its ``step`` returns; placeholder zeros while ``num_accepted_steps`` is 0), or
+    None for a state of another kind."""
+    f_info = getattr(state, "f_info", None)
+    if isinstance(f_info, optx.FunctionInfo.ResidualJac) and hasattr(state,
+                                                                    "num_accepted_steps"):
+        return f_info.residual
+    return None
 
 
 def final_step_size(state):
