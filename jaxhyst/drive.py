@@ -9,6 +9,9 @@ H = 0 and/or whole periods whose transient is discarded.
 
 from __future__ import annotations
 
+import functools
+import inspect
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -138,8 +141,15 @@ class Drive(eqx.Module):
                 f"{actuator.name} has no turns-per-metre n; give the drive as a field "
                 "(Drive(t, H)) or set Actuator.n."
             )
-        current = jnp.asarray(current, dtype=jnp.float64)
-        return cls(t, actuator.n * current + actuator.Hb, run_in=run_in, uniform=uniform)
+        return cls(t, _field_from_current(_strong(actuator.n), _strong(actuator.Hb),
+                                          current), run_in=run_in,
+                   uniform=uniform)
+
+
+@jax.jit
+def _field_from_current(n, Hb, current):
+    """H = n·I + Hb (A/m), one compiled program."""
+    return _as_float(n) * _as_float(current) + _as_float(Hb)
 
 
 def drive_from_record(t, H, *, run_in_periods: int = 1, ramp_fraction: float = 0.25) -> Drive:
@@ -225,6 +235,14 @@ def sinusoidal_field(
     ``frequency`` (Hz), ``amplitude`` and ``offset`` (A/m) may be traced (differentiate
     through them, vmap over them); the sample counts are structure.
     """
+    return _sinusoidal(frequency, amplitude, offset, 1.0, 0.0, periods, samples_per_period,
+                       run_in_periods, ramp_periods)
+
+
+def _sinusoidal(frequency, amplitude, offset, scale, shift, periods, samples_per_period,
+                run_in_periods, ramp_periods) -> Drive:
+    """`sinusoidal_field` of H = scale·(offset + amplitude·sin) + shift, scale·offset +
+    shift and scale·amplitude formed as `sinusoidal_current` forms them."""
     _check_number("frequency", frequency, lambda v: v > 0, " > 0 Hz")
     _check_number("amplitude", amplitude, lambda v: True, " (A/m)")
     _check_number("offset", offset, lambda v: True, " (A/m)")
@@ -238,14 +256,33 @@ def sinusoidal_field(
     n_ramp = int(round(ramp_periods * spp))
     n_run = int(run_in_periods) * spp
     n_obs = int(round(periods * spp)) + 1  # closed loop: include the end point
-    k = np.arange(-(n_ramp + n_run), n_obs)
+    k = np.arange(-(n_ramp + n_run), n_obs, dtype=np.float64)
     phase = 2 * np.pi * k / spp  # 2π f t, exact in the sample index
-    frequency = jnp.asarray(frequency, dtype=jnp.float64)
-    t = jnp.asarray(k, dtype=jnp.float64) / (frequency * spp)
-    H = offset + amplitude * jnp.sin(jnp.asarray(phase))
+    t, H = _sinusoid(*map(_strong, (frequency, amplitude, offset, scale, shift)), k, phase,
+                     spp, n_ramp)
+    return Drive(t, H, run_in=n_ramp + n_run, uniform=True)
+
+
+def _strong(x):
+    """A Python or NumPy number as a float64 scalar (a weakly typed Python float would
+    key another compilation than the actuator's float64 arrays); arrays unchanged."""
+    return x if isinstance(x, jax.Array) else np.float64(x)
+
+
+def _as_float(x):
+    return jnp.asarray(x, dtype=jnp.float64)
+
+
+@functools.partial(jax.jit, static_argnums=(7, 8))
+def _sinusoid(frequency, amplitude, offset, scale, shift, k, phase, spp: int, n_ramp: int):
+    """(t, H) of `_sinusoidal` at sample indices k and phases 2πk/spp, one compiled
+    program (run op by op, each operation would compile on its own at the first call)."""
+    scale = _as_float(scale)
+    t = k / (_as_float(frequency) * spp)
+    H = (scale * offset + shift) + (scale * amplitude) * jnp.sin(phase)
     if n_ramp:  # whole run-in periods: the sinusoid there starts at phase 0, H = offset
         H = H.at[:n_ramp].set(H[n_ramp] * jnp.arange(n_ramp) / n_ramp)
-    return Drive(t, H, run_in=n_ramp + n_run, uniform=True)
+    return t, H
 
 
 def sinusoidal_current(
@@ -264,9 +301,13 @@ def sinusoidal_current(
         raise ValueError(f"{actuator.name} has no turns-per-metre n; use sinusoidal_field.")
     _check_number("amplitude", amplitude, lambda v: True, " (A)")
     _check_number("offset", offset, lambda v: True, " (A)")
-    return sinusoidal_field(
-        frequency,
-        actuator.n * amplitude,
-        actuator.n * offset + actuator.Hb,
-        **kwargs,
-    )
+    options = {name: q.default for name, q in
+               inspect.signature(sinusoidal_field).parameters.items()
+               if q.kind is q.KEYWORD_ONLY}
+    unknown = set(kwargs) - set(options)
+    if unknown:
+        raise TypeError(f"sinusoidal_current got unexpected keyword arguments "
+                        f"{sorted(unknown)}; it takes those of sinusoidal_field: "
+                        f"{list(options)}.")
+    options.update(kwargs)
+    return _sinusoidal(frequency, amplitude, offset, actuator.n, actuator.Hb, **options)

@@ -41,6 +41,30 @@ def test_no_recompilation_for_new_values_frequency_jitter_or_actuator():
     assert len(traces) == 1
 
 
+def test_the_drive_builders_compile_one_program_and_nothing_for_new_values(caplog):
+    """A first sinusoidal drive compiles one program (op by op, each operation would
+    compile on its own: ~0.5 s at the first call); a new frequency, amplitude, offset or
+    actuator of the same length compiles nothing, and nor does a second coil current."""
+    import logging
+
+    spp = 37  # a length no other test builds
+    other = jh.Actuator(Ar=9e-5, lr=0.1, n=40000.0, Hb=1000.0, name="other")
+    current = np.sin(np.linspace(0.0, 6.0, 53))
+    with jax.log_compiles(), caplog.at_level(logging.WARNING):
+        jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=spp)
+        first = [r.getMessage() for r in caplog.records
+                 if r.getMessage().startswith("Finished XLA compilation")]
+        caplog.clear()
+        jh.sinusoidal_current(137.0, 0.5, 1.0, other, samples_per_period=spp)
+        jh.sinusoidal_field(20.0, 8e3, -3e3, samples_per_period=spp)
+        jh.Drive.from_current(np.arange(53.0), current, jh.ACTUATOR1)
+        jh.Drive.from_current(np.arange(53.0), 2 * current, other)
+        again = [r.getMessage() for r in caplog.records
+                 if r.getMessage().startswith("Finished XLA compilation")]
+    assert len(first) == 1 and "_sinusoid" in first[0], first
+    assert len(again) == 1 and "_field_from_current" in again[0], again
+
+
 def test_jittered_time_stamps_give_the_exact_nonuniform_result():
     base = _drive()
     t = np.asarray(base.t) + 4e-5 * float(base.dt) * np.sin(np.arange(base.n_samples))
