@@ -146,6 +146,33 @@ def test_vmap_equals_loop_and_jit():
     np.testing.assert_allclose(jitted, jh.simulate(p, act, drive).y, rtol=1e-14, atol=1e-20)
 
 
+def test_a_population_in_blocks_equals_the_whole_vmap():
+    """`vmap_blocked` (large populations on the CPU run block by block, the last block
+    padded with copies of the last member) gives jax.vmap's values and shapes."""
+    from jaxhyst.sharding import vmap_blocked
+
+    _, _, act, drive = CASES[0]
+    lo = jh.TABLE1_BOUNDS.lower.to_array()
+    hi = jh.TABLE1_BOUNDS.upper.to_array()
+    X = lo + (hi - lo) * jax.random.uniform(jax.random.PRNGKey(3), (18, 10))
+
+    def one(x):
+        sim = simulate_unchecked(jh.Parameters.from_array(x), act, drive)
+        return sim.y, {"M": sim.M}
+
+    whole = jax.jit(jax.vmap(one))(X)
+    blocked = jax.jit(vmap_blocked(one, 18, block=4))(X)  # 5 blocks, 2 padding members
+    for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(blocked), strict=True):
+        assert a.shape == b.shape == (18, drive.n_samples)
+        np.testing.assert_allclose(b, a, rtol=1e-13, atol=1e-13 * float(jnp.max(jnp.abs(a))))
+    jaxpr = str(jax.make_jaxpr(vmap_blocked(one, 18, block=4))(X))
+    assert ("scan" in jaxpr) == (jax.default_backend() == "cpu")  # blocks: a loop over them
+    small = str(jax.make_jaxpr(vmap_blocked(one, 15, block=4))(X[:15]))  # < 4 blocks
+    assert small.count("scan") < jaxpr.count("scan")
+    with pytest.raises(ValueError, match="block"):
+        vmap_blocked(one, 18, block=0)
+
+
 def test_no_nan_anywhere_in_table1_box():
     _, _, act, drive = CASES[0]
     lo = jh.TABLE1_BOUNDS.lower.to_array()

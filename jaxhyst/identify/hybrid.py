@@ -61,7 +61,7 @@ import numpy as np
 
 from .._interrupt import interruptible
 from ..names import HYBRID_NAMES
-from ..sharding import map_sharded, shardable
+from ..sharding import map_sharded, shardable, vmap_blocked
 from .ga import bcga_offspring, decode, fcga_offspring
 from .local import CODES, run_local, stepped_solve, summarize
 from .problem import AbstractProblem
@@ -188,10 +188,13 @@ def initial_state(n: int, settings: GASettings, seed: int, step_size: float) -> 
 
 
 def _evaluate(problem, U, shard: bool = True):
-    """Costs of a population (vmapped; over all devices, no communication, when ``shard``
-    and the population divides evenly)."""
+    """Costs of a population (vmapped, in blocks on the CPU when large: `vmap_blocked`;
+    over all devices, no communication, when ``shard`` and the population divides
+    evenly)."""
     P = U.shape[0]
-    return map_sharded(jax.vmap(problem.cost_u), P, shard and shardable(P))(U)
+    split = shard and shardable(P)
+    per_device = P // jax.device_count() if split else P
+    return map_sharded(vmap_blocked(problem.cost_u, per_device), P, split)(U)
 
 
 def _record(state, costs, fitness, local):

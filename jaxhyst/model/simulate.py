@@ -26,6 +26,7 @@ from ..actuator import Actuator
 from ..drive import Drive
 from ..names import DEFAULT_SUBSTEPS
 from ..params import Parameters, check_parameters
+from ..sharding import vmap_blocked
 from .jiles_atherton import EnergyBasedJA, JAVariant, anhysteretic
 from .magnetization import magnetization_path
 from .magnetostriction import magnetostriction
@@ -187,9 +188,8 @@ def simulate(
 
 @eqx.filter_jit
 def _simulate_batch(params, actuator, drive, variant, substeps):
-    return jax.vmap(simulate_unchecked, in_axes=(0, None, None, None, None))(
-        params, actuator, drive, variant, substeps
-    )
+    return vmap_blocked(lambda p: simulate_unchecked(p, actuator, drive, variant, substeps),
+                        jnp.shape(params.Ms)[0])(params)
 
 
 def simulate_batch(
@@ -200,7 +200,9 @@ def simulate_batch(
     substeps: int = DEFAULT_SUBSTEPS,
 ) -> Simulation:
     """`simulate` for a batch of parameter sets (leaves of shape (P,)) in one vmapped,
-    jitted call: signals of shape (P, T). This is the GA's population evaluation."""
+    jitted call: signals of shape (P, T), evaluated as the GA evaluates populations: on the
+    CPU a batch of hundreds runs in blocks of 64 members (`jaxhyst.sharding.vmap_blocked`:
+    the same values to round-off, ~1.3× faster at P = 1000)."""
     _check_inputs(params, actuator, drive, variant, substeps)
     if jnp.ndim(params.Ms) != 1:
         raise ValueError(
