@@ -141,9 +141,8 @@ class Drive(eqx.Module):
                 f"{actuator.name} has no turns-per-metre n; give the drive as a field "
                 "(Drive(t, H)) or set Actuator.n."
             )
-        return cls(t, _field_from_current(_strong(actuator.n), _strong(actuator.Hb),
-                                          current), run_in=run_in,
-                   uniform=uniform)
+        H = _field_from_current(_strong(actuator.n), _strong(actuator.Hb), current)
+        return cls(t, H, run_in=run_in, uniform=uniform)
 
 
 @jax.jit

@@ -174,7 +174,9 @@ def _finish_one(problem, solver, static, carry):
         cost, residuals = _evaluation(problem, y)
         residuals, known = tuple(jnp.ravel(e) for e in residuals), jnp.array(True)
     else:
-        known = state.num_accepted_steps > 0  # (before: placeholder zeros; see below)
+        # (before the first accepted step the state holds placeholder zeros:
+        # `stepped_solve` evaluates those end points itself)
+        known = state.num_accepted_steps > 0
         cost, residuals = jnp.sum(r**2), _split_groups(problem, r)
     return y, _code(result), steps, cost, final_step_size(state), residuals, known
 
@@ -220,8 +222,8 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int,
                   progress: float | bool = False, label: str = "local"):
     """Solve from each start of ``z0s`` (K, n) in one vmapped batch, stepped from Python;
     returns (z, code, steps, cost, final step size, group residuals flattened) batched
-    over K and whether it was interrupted. ``progress``: seconds between progress lines on stderr
-    (True = 2 s; a live line on a terminal). Ctrl-C/SIGTERM (`jaxhyst._interrupt`) stops
+    over K and whether it was interrupted. ``progress``: seconds between progress lines
+    on stderr (True = 2 s; a live line on a terminal). Ctrl-C/SIGTERM (`jaxhyst._interrupt`) stops
     after the current chunk of steps with the points reached."""
     from .._interrupt import interruptible
 
