@@ -141,6 +141,8 @@ class Drive(eqx.Module):
                 f"{actuator.name} has no turns-per-metre n; give the drive as a field "
                 "(Drive(t, H)) or set Actuator.n."
             )
+        if not isinstance(current, jax.Array):  # (a list would reach jit as T scalars)
+            current = np.asarray(current, dtype=np.float64)
         H = _field_from_current(_strong(actuator.n), _strong(actuator.Hb), current)
         return cls(t, H, run_in=run_in, uniform=uniform)
 

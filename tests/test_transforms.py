@@ -59,10 +59,12 @@ def test_the_drive_builders_compile_one_program_and_nothing_for_new_values(caplo
         jh.sinusoidal_field(20.0, 8e3, -3e3, samples_per_period=spp)
         jh.Drive.from_current(np.arange(53.0), current, jh.ACTUATOR1)
         jh.Drive.from_current(np.arange(53.0), 2 * current, other)
+        listed = jh.Drive.from_current(np.arange(53.0), current.tolist(), other)  # a list
         again = [r.getMessage() for r in caplog.records
                  if r.getMessage().startswith("Finished XLA compilation")]
     assert len(first) == 1 and "_sinusoid" in first[0], first
     assert len(again) == 1 and "_field_from_current" in again[0], again
+    np.testing.assert_allclose(listed.H, other.n * current + other.Hb, rtol=1e-15)
 
 
 def test_jittered_time_stamps_give_the_exact_nonuniform_result():
