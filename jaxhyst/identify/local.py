@@ -223,8 +223,9 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int,
     """Solve from each start of ``z0s`` (K, n) in one vmapped batch, stepped from Python;
     returns (z, code, steps, cost, final step size, group residuals flattened) batched
     over K and whether it was interrupted. ``progress``: seconds between progress lines
-    on stderr (True = 2 s; a live line on a terminal). Ctrl-C/SIGTERM (`jaxhyst._interrupt`) stops
-    after the current chunk of steps with the points reached."""
+    on stderr (True = 2 s; a live line on a terminal). Ctrl-C/SIGTERM
+    (`jaxhyst._interrupt`) stops after the current chunk of steps with the points
+    reached."""
     from .._interrupt import interruptible
 
     every = 2.0 if progress is True else float(progress or 0)

@@ -451,8 +451,8 @@ def synthetic_problem(params: Parameters, drive: Drive, actuator: Actuator, boun
     # compiled as one program (op by op, the first call compiled ~150 small programs)
     sim = simulate(params, actuator, drive, kwargs.get("variant", PAPER_VARIANT),
                    kwargs.get("substeps", DEFAULT_SUBSTEPS))
-    data = np.asarray(OUTPUTS[output][1](sim))[drive.run_in:]  # (eagerly, jax would
-    # compile the slice as a program of its own)
+    # the observed part sliced in NumPy (eagerly, JAX would compile the slice on its own)
+    data = np.asarray(OUTPUTS[output][1](sim))[drive.run_in:]
     if noise:
         if key is None:
             raise ValueError("noise > 0 needs a jax.random key for reproducibility.")
