@@ -8,7 +8,9 @@ compilation cache is one call, `jaxhyst.enable_compilation_cache()`.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import sys
 
 from ._config import cpu_loop_kernels, enable_compilation_cache  # (first: x64, XLA flag)
 
@@ -37,13 +39,26 @@ _SUBMODULES = ("actuator", "analysis", "drive", "fit", "identify", "io", "model"
 __all__ = ["cpu_loop_kernels", "enable_compilation_cache", *_EXPORTS]
 
 
+def _eager():
+    """The context for loading a submodule: JAX's compile-time evaluation when JAX runs.
+    A user's jitted function may be the first to touch ``jaxhyst.X``; the module-level
+    constants imported then (TABLE1_TRUE, ACTUATOR1, …) must be concrete arrays, not
+    tracers of that trace leaking into the module. (Without JAX imported, no trace runs.)"""
+    if "jax" not in sys.modules:
+        return contextlib.nullcontext()
+    import jax
+
+    return jax.ensure_compile_time_eval()
+
+
 def __getattr__(name: str):
-    if name in _EXPORTS:
-        value = getattr(importlib.import_module(_EXPORTS[name], __name__), name)
-    elif name in _SUBMODULES:
-        value = importlib.import_module(f".{name}", __name__)
-    else:
+    if name not in _EXPORTS and name not in _SUBMODULES:
         raise AttributeError(f"module 'jaxhyst' has no attribute {name!r}")
+    with _eager():
+        if name in _EXPORTS:
+            value = getattr(importlib.import_module(_EXPORTS[name], __name__), name)
+        else:
+            value = importlib.import_module(f".{name}", __name__)
     globals()[name] = value
     return value
 

@@ -21,7 +21,8 @@ from .actuator import Actuator
 
 
 def _concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
+    """Whether ``x`` (a number, array or list of them) holds no tracer."""
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x))
 
 
 #: Largest relative deviation of a time step from the mean for a drive to count as
@@ -41,9 +42,9 @@ class Drive(eqx.Module):
     - ``H``: applied field at those times, A/m, shape (T,) (already including any bias).
     - ``run_in``: number of leading samples that are simulated but not observed.
     - ``uniform``: whether the samples are uniformly spaced (every step within 1e-4 of
-      the mean step). ``None`` (default) detects it from concrete ``t``; a traced ``t``
-      (a drive built inside ``jit``/``grad``) counts as non-uniform unless you say
-      ``uniform=True``. The drive builders set it.
+      the mean step). ``None`` (default) detects it from a concrete ``t`` (also when the
+      drive is built inside ``jit``/``grad`` from NumPy times); a traced ``t`` counts as
+      non-uniform unless you say ``uniform=True``. The drive builders set it.
 
     ``t`` and ``H`` are data: a new frequency, amplitude or jitter in ``t`` does not
     recompile a jitted simulation, and drives of equal length stack for ``vmap``. Only
@@ -58,6 +59,10 @@ class Drive(eqx.Module):
     uniform: bool = eqx.field(static=True, default=False)
 
     def __init__(self, t, H, run_in: int = 0, uniform: bool | None = None):
+        # inspect the values as given: inside a trace jnp.asarray turns even a NumPy
+        # array into a tracer, and a drive built there from concrete times would lose
+        # its uniform sampling (and its checks)
+        t_given, H_given = t, H
         t = jnp.asarray(t, dtype=jnp.float64)
         H = jnp.asarray(H, dtype=jnp.float64)
         if t.ndim != 1 or H.ndim != 1:
@@ -79,8 +84,8 @@ class Drive(eqx.Module):
                 f"Drive run_in={run_in} must be in [0, {t.shape[0] - 2}] so that at least "
                 "two samples are observed."
             )
-        if _concrete(H):
-            Hn = np.asarray(H)
+        if _concrete(H_given):
+            Hn = np.asarray(H_given, dtype=np.float64)
             if not np.all(np.isfinite(Hn)):
                 bad = np.flatnonzero(~np.isfinite(Hn))[:5]
                 raise ValueError(
@@ -88,8 +93,8 @@ class Drive(eqx.Module):
                     "remove or interpolate those samples."
                 )
             _check_field_range(Hn, "Drive field H")
-        if _concrete(t):
-            tn = np.asarray(t)
+        if _concrete(t_given):
+            tn = np.asarray(t_given, dtype=np.float64)
             if not np.all(np.isfinite(tn)):
                 raise ValueError(
                     "Drive time t contains NaN or inf; remove or repair those samples."

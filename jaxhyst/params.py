@@ -200,7 +200,10 @@ class Bounds(eqx.Module):
     upper: Parameters
 
     def __check_init__(self):
-        lo, hi = np.asarray(self.lower.to_array()), np.asarray(self.upper.to_array())
+        if not all(map(_is_concrete, jax.tree.leaves(self))):
+            return  # bounds built inside a trace: nothing to inspect
+        lo = np.array([np.asarray(getattr(self.lower, n), dtype=np.float64) for n in NAMES])
+        hi = np.array([np.asarray(getattr(self.upper, n), dtype=np.float64) for n in NAMES])
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise ValueError("Bounds must be finite for every parameter.")
         bad = [n for n, l_, h_ in zip(NAMES, lo, hi, strict=True) if not l_ <= h_]

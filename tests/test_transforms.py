@@ -67,6 +67,61 @@ def test_the_drive_builders_compile_one_program_and_nothing_for_new_values(caplo
     np.testing.assert_allclose(listed.H, other.n * current + other.Hb, rtol=1e-15)
 
 
+def test_a_drive_built_inside_jit_from_numpy_times_keeps_its_uniform_sampling():
+    """Inside a trace jnp.asarray turns even NumPy times into a tracer; the drive must
+    still be recognised as uniform from the times given (not fall back silently to the
+    slower exact path), and give the values of the drive built outside."""
+    base = _drive()
+    t = np.asarray(base.t)
+    current = (np.asarray(base.H) - float(jh.ACTUATOR1.Hb)) / float(jh.ACTUATOR1.n)
+    seen = []
+
+    @jax.jit
+    def y(current):
+        drive = jh.Drive.from_current(t, current, jh.ACTUATOR1, run_in=base.run_in)
+        seen.append(drive.uniform)
+        return simulate_unchecked(jh.TABLE1_TRUE, jh.ACTUATOR1, drive).y
+
+    inside = y(jnp.asarray(current))
+    outside = jh.Drive.from_current(t, current, jh.ACTUATOR1, run_in=base.run_in)
+    assert seen == [True] and outside.uniform
+    expected = simulate_unchecked(jh.TABLE1_TRUE, jh.ACTUATOR1, outside).y
+    np.testing.assert_allclose(inside, expected, rtol=1e-13,
+                               atol=1e-13 * float(jnp.max(jnp.abs(expected))))
+    # a list or NumPy array of times with a traced field: checked and detected as well
+    with pytest.raises(ValueError, match="strictly increasing"):
+        jax.jit(lambda H: jh.Drive(t[::-1], H).H)(jnp.asarray(base.H))
+
+
+def test_jaxhyst_first_touched_inside_a_jitted_function_leaks_no_tracer():
+    """A fresh process whose first use of jaxhyst's names is inside ``jax.jit``: the
+    module constants imported then (TABLE1_TRUE, ACTUATOR1, TABLE1_BOUNDS) are concrete
+    and usable afterwards."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent("""
+        import jax
+        import jax.numpy as jnp
+        import jaxhyst as jh
+
+        @jax.jit
+        def loss(a):
+            p = jh.TABLE1_TRUE.replace(a=a)
+            d = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=8)
+            return jnp.sum(jh.simulate_unchecked(p, jh.ACTUATOR1, d).y ** 2)
+
+        assert jnp.isfinite(loss(7000.0))
+        print(float(jh.TABLE1_TRUE.a), float(jh.ACTUATOR1.Ar),
+              float(jh.TABLE1_BOUNDS.upper.a), jh.TABLE1_BOUNDS.contains(jh.TABLE1_TRUE))
+    """)
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split() == ["7012.0", "7.85e-05", "10518.0", "True"]
+
+
 def test_jittered_time_stamps_give_the_exact_nonuniform_result():
     base = _drive()
     t = np.asarray(base.t) + 4e-5 * float(base.dt) * np.sin(np.arange(base.n_samples))
