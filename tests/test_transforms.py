@@ -93,6 +93,11 @@ def test_a_drive_built_inside_jit_from_numpy_times_keeps_its_uniform_sampling():
         jax.jit(lambda H: jh.Drive(t[::-1], H).H)(jnp.asarray(base.H))
 
 
+def test_a_traced_substeps_count_is_refused_with_the_fix():
+    with pytest.raises(TypeError, match="static_argnames='substeps'"):
+        jax.jit(simulate_unchecked)(jh.TABLE1_TRUE, jh.ACTUATOR1, _drive(), substeps=4)
+
+
 def test_jaxhyst_first_touched_inside_a_jitted_function_leaks_no_tracer():
     """A fresh process whose first use of jaxhyst's names is inside ``jax.jit``: the
     module constants imported then (TABLE1_TRUE, ACTUATOR1, TABLE1_BOUNDS) are concrete

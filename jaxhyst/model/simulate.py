@@ -76,7 +76,7 @@ def simulate_unchecked(
     """`simulate` without input validation: the pure function for jit/vmap/grad inside
     solvers. Same arguments and result as `simulate`."""
     p = params
-    S = int(substeps)
+    S = _static_substeps(substeps)
     t, H = drive.t, drive.H
     M_sub, k_sub = magnetization_path(p, H, variant=variant, substeps=S)  # (N, S), (N, S+1)
     zero = jnp.zeros((1,), dtype=H.dtype)
@@ -110,6 +110,16 @@ def simulate_unchecked(
 
 
 _simulate_jit = eqx.filter_jit(simulate_unchecked)
+
+
+def _static_substeps(substeps) -> int:
+    """``substeps`` as a Python int: it is the loop's structure, not data."""
+    if isinstance(substeps, jax.core.Tracer):
+        raise TypeError(
+            "substeps is traced here, but it is structure (RK4 pieces per interval): pass "
+            "a Python int, and under jax.jit mark it static, e.g. "
+            "jax.jit(simulate_unchecked, static_argnames='substeps').")
+    return int(substeps)
 
 
 def _check_inputs(params, actuator, drive, variant, substeps) -> None:
