@@ -182,7 +182,7 @@ def population_table(spp, repeats, sharded):
     ``sharded`` (`map_sharded`)."""
     import jax
 
-    from jaxhyst.sharding import map_sharded, vmap_blocked
+    from jaxhyst.sharding import batch_sharding, map_sharded, place, vmap_blocked
 
     s = setup(spp)
     jh = s["jh"]
@@ -190,6 +190,8 @@ def population_table(spp, repeats, sharded):
     rows = {}
     for P in (120, 1000):
         X = lo + (hi - lo) * jax.random.uniform(jax.random.PRNGKey(0), (P, 10))
+        if sharded:  # already on the devices, as the GA's population is (no copy per call)
+            X = place(X, batch_sharding(P))
         per_device = P // jax.device_count() if sharded else P
         # each device runs its own share, no communication in the time loop
         plain = jax.jit(map_sharded(jax.vmap(s["y_of"]), P, sharded))
