@@ -63,8 +63,7 @@ class Drive(eqx.Module):
         # array into a tracer, and a drive built there from concrete times would lose
         # its uniform sampling (and its checks)
         t_given, H_given = t, H
-        t = jnp.asarray(t, dtype=jnp.float64)
-        H = jnp.asarray(H, dtype=jnp.float64)
+        t, H = _samples(t, "t", "times in s"), _samples(H, "H", "fields in A/m")
         if t.ndim != 1 or H.ndim != 1:
             raise ValueError(
                 f"Drive needs 1-D t and H (one sample per entry); got shapes {t.shape}, "
@@ -150,6 +149,17 @@ class Drive(eqx.Module):
             current = np.asarray(current, dtype=np.float64)
         H = _field_from_current(_strong(actuator.n), _strong(actuator.Hb), current)
         return cls(t, H, run_in=run_in, uniform=uniform)
+
+
+def _samples(x, name: str, what: str):
+    """A drive's samples as a float64 array; a one-line error for anything that is not
+    numbers."""
+    try:
+        return jnp.asarray(x, dtype=jnp.float64)
+    except (TypeError, ValueError):
+        shown = repr(x) if len(repr(x)) <= 60 else repr(x)[:57] + "..."
+        raise ValueError(f"Drive {name} must be a sequence of numbers ({what}); got "
+                         f"{shown}.") from None
 
 
 @jax.jit

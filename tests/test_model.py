@@ -255,6 +255,10 @@ def test_bad_drives_are_refused():
         jh.Drive(t, H[:-1])
     with pytest.raises(ValueError, match="NaN or inf"):
         jh.Drive(np.where(t > 5e-3, np.inf, t), H)
+    with pytest.raises(ValueError, match=r"Drive t must be a sequence of numbers"):
+        jh.Drive(None, H)
+    with pytest.raises(ValueError, match=r"Drive H must be a sequence of numbers"):
+        jh.Drive(t, ["a"] * len(t))
     with pytest.raises(ValueError, match="turns-per-metre"):
         jh.Drive.from_current(t, H, jh.ACTUATOR2)
     with pytest.raises(TypeError, match="drive must be"):
