@@ -88,7 +88,7 @@ def test_a_drive_built_inside_jit_from_numpy_times_keeps_its_uniform_sampling():
     expected = simulate_unchecked(jh.TABLE1_TRUE, jh.ACTUATOR1, outside).y
     np.testing.assert_allclose(inside, expected, rtol=1e-13,
                                atol=1e-13 * float(jnp.max(jnp.abs(expected))))
-    # a list or NumPy array of times with a traced field: checked and detected as well
+    # NumPy times given with a traced field are still checked
     with pytest.raises(ValueError, match="strictly increasing"):
         jax.jit(lambda H: jh.Drive(t[::-1], H).H)(jnp.asarray(base.H))
 
