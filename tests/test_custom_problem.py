@@ -116,3 +116,29 @@ def test_a_prior_needs_the_noise_levels():
         jh.ResidualProblem(lambda th, d: th["a"] - d, space, jnp.ones(3),
                            groups={"residuals": {"sigma": 1.0}},
                            priors=[jh.GaussianPrior("b", 1.0, 1.0)])
+
+
+def test_residuals_in_metres_without_noise_levels_still_reach_the_optimum():
+    """A first try with neither sigma nor scale: displacement residuals of ~1e-6 m would
+    make every LM step ~1e-12 and stop the solve at its start as "converged"; each group
+    is scaled by its residuals' size in the box instead. One parameter in a dict (a
+    one-key dict start is read as parameters), the truth at the centre of the box."""
+    data = DRIVE_Y.observed(simulate_unchecked(jh.TABLE1_TRUE, jh.ACTUATOR1, DRIVE_Y).y)
+
+    def fn(theta, data):
+        p = jh.TABLE1_TRUE.replace(a=theta["a"])
+        return {"y": DRIVE_Y.observed(simulate_unchecked(p, jh.ACTUATOR1, DRIVE_Y).y) - data}
+
+    space = jh.ParameterSpace.for_tree(lower={"a": 5012.0}, upper={"a": 9012.0})
+    problem = jh.ResidualProblem(fn, space, data)
+    scale = problem.groups[0].scale
+    assert 1e-7 < scale < float(np.max(np.abs(data)))  # the residuals' size, not 1 (m)
+    fit = jh.solve(problem, {"a": 6000.0}, solver="lm", report=False)
+    assert fit.success and abs(float(fit.params["a"]) - 7012.0) < 1e-6
+
+
+def test_a_start_of_the_wrong_kind_is_refused_with_what_to_give(problem):
+    with pytest.raises(ValueError, match=r"box coordinates u in \[0, 1\].*'a', 'c', 'k'"):
+        jh.solve(problem, np.array([6000.0, 0.1, 3000.0]), solver="lm", report=False)
+    with pytest.raises(TypeError, match=r"missing \['c'\]"):
+        jh.solve(problem, {"a": 6000.0, "k": 3000.0}, solver="lm", report=False)

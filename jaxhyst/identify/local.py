@@ -275,23 +275,47 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
     gives (K, n)) or from box coordinates u ∈ [0, 1]ⁿ (shape (n,) or (K, n)). For a
     space over a single array, an array is read as box coordinates."""
     space = problem.space
-    if (space.treedef.num_leaves > 1 and jax.tree.structure(start) == space.treedef):
+    tree_kind = not jax.tree_util.treedef_is_leaf(space.treedef)
+    if tree_kind and jax.tree.structure(start) == space.treedef:
         leaf, shape = jax.tree.leaves(start)[0], space.shapes[0]
         if jnp.ndim(leaf) > len(shape):
             return jax.vmap(space.z_from_params)(start)
         return space.z_from_params(start)
     try:
         u = jnp.asarray(start, dtype=jnp.float64)
-    except TypeError:
-        raise TypeError(f"start must be box coordinates u or parameters of this problem's "
-                        f"kind; got {type(start).__name__}.") from None
+    except (TypeError, ValueError):
+        raise TypeError(_start_kind_message(space, start)) from None
     if u.ndim not in (1, 2) or u.shape[-1] != space.n_free:
         raise ValueError(f"A start in box coordinates needs {space.n_free} entries (free "
                          f"parameters {space.names}); got shape {u.shape}.")
     u_np = np.asarray(u)
     if not np.all((u_np >= 0) & (u_np <= 1)):
-        raise ValueError("Box coordinates u of a start must lie in [0, 1].")
+        kind = (f"; to start from values of the parameters give {_kind(space)}"
+                if tree_kind else "")
+        raise ValueError(
+            f"A start given as an array is read as box coordinates u in [0, 1] (one per "
+            f"free parameter, {', '.join(space.names)}); got values from "
+            f"{np.nanmin(u_np):.6g} to {np.nanmax(u_np):.6g}{kind}.")
     return _z_from_u_jit(u)
+
+
+def _kind(space) -> str:
+    """The problem's parameters in words, for messages about a start."""
+    node, keys = space.treedef.node_data()
+    if node is dict:
+        return "a dict with the keys " + ", ".join(map(repr, keys))
+    return f"a {node.__name__} (like the problem's bounds)"
+
+
+def _start_kind_message(space, start) -> str:
+    """Why ``start`` is neither this problem's parameters nor box coordinates."""
+    if isinstance(start, dict) and space.treedef.node_data()[0] is dict:
+        keys = set(space.treedef.node_data()[1])
+        missing, unknown = sorted(keys - set(start)), sorted(set(start) - keys)
+        return (f"start has the keys {sorted(start)}, but this problem's parameters are "
+                f"{sorted(keys)} (missing {missing}, unknown {unknown}); give all of them.")
+    return (f"start must be {_kind(space)} or box coordinates u in [0, 1] (one per free "
+            f"parameter, {', '.join(space.names)}); got {type(start).__name__}.")
 
 
 _z_from_u_jit = jax.jit(z_from_u)

@@ -96,8 +96,9 @@ class ResidualGroup(eqx.Module):
     - ``sigma``: known noise standard deviation (unit); ``None`` to estimate it from the
       fit (the identifiability report does, per group).
     - ``weight``: relative weight when ``sigma`` is not given.
-    - ``scale``: the data's size (unit), max|data| by default; the normaliser without
-      sigma is scale·√(size/weight).
+    - ``scale``: the data's size (unit): max|data| for a `Problem`; for a
+      `ResidualProblem` the largest RMS of the group's residuals at the box's centre and
+      quarter points unless given. The normaliser without sigma is scale·√(size/weight).
     """
 
     name: str = eqx.field(static=True)
@@ -374,7 +375,10 @@ class ResidualProblem(AbstractProblem):
       `ParameterSpace.for_tree` for any pytree).
     - ``data``: passed to ``fn``; replicate fits replace it.
     - ``groups``: ``{name: {"sigma": …, "weight": …, "unit": …, "scale": …}}`` (all
-      optional; sizes come from ``fn``).
+      optional; sizes come from ``fn``). A group given neither ``sigma`` nor ``scale``
+      is scaled by the largest RMS of its residuals at the centre and the quarter
+      points of the box (``fn`` evaluated there on construction), so that residuals in
+      any unit reach the solvers at order one.
     - ``priors``: `GaussianPrior` terms (need every group's sigma).
     """
 
@@ -407,13 +411,18 @@ class ResidualProblem(AbstractProblem):
         if unknown:
             raise ValueError(f"groups {unknown} are not returned by fn (it returns "
                              f"{sorted(shapes)}).")
-        built = []
-        for name, s in shapes.items():
-            opts = dict(spec.get(name, {}))
-            bad = sorted(set(opts) - {"sigma", "weight", "unit", "scale"})
+        for name in shapes:
+            bad = sorted(set(spec.get(name, {})) - {"sigma", "weight", "unit", "scale"})
             if bad:
                 raise ValueError(f"group {name!r}: unknown options {bad} (use sigma, "
                                  "weight, unit, scale).")
+        unscaled = [n for n in shapes if not {"sigma", "scale"} & set(spec.get(n, {}))]
+        sizes = _residual_sizes(fn, space, data, single, unscaled) if unscaled else {}
+        built = []
+        for name, s in shapes.items():
+            opts = dict(spec.get(name, {}))
+            if name in sizes:
+                opts["scale"] = sizes[name]
             built.append(ResidualGroup(name, int(np.prod(s.shape)), **opts))
         self.group_spec = tuple(built)
         self.priors = tuple(priors)
@@ -436,6 +445,29 @@ class ResidualProblem(AbstractProblem):
 
     def with_data(self, data) -> ResidualProblem:
         return eqx.tree_at(lambda q: q.data, self, data, is_leaf=lambda x: x is None)
+
+
+def _residual_sizes(fn, space, data, single: bool, names) -> dict:
+    """The largest RMS of each named group's residuals at the centre of the box and at
+    its quarter points (u = 0.5, 0.25, 0.75 in every coordinate): the scale of a group
+    given neither sigma nor scale, so that the solvers see residuals of order one
+    whatever their unit (residuals in metres, ~1e-6, would make an LM step ~1e-12 and
+    end the solve at its start as "converged"). 1 where no point gives a finite
+    positive value."""
+    sizes = dict.fromkeys(names, 0.0)
+    evaluate = jax.jit(fn)
+    for u in (0.5, 0.25, 0.75):
+        try:
+            out = evaluate(space.params_from_u(jnp.full(space.n_free, u)), data)
+        except Exception:  # noqa: BLE001 - the solve will report the user's error
+            continue
+        out = {"residuals": out} if single else out
+        for name in names:
+            r = np.asarray(out[name], dtype=np.float64)
+            rms = float(np.sqrt(np.mean(np.square(r)))) if r.size else 0.0
+            if np.isfinite(rms):
+                sizes[name] = max(sizes[name], rms)
+    return {name: size if size > 0 else 1.0 for name, size in sizes.items()}
 
 
 def synthetic_problem(params: Parameters, drive: Drive, actuator: Actuator, bounds: Bounds,
