@@ -142,3 +142,11 @@ def test_a_start_of_the_wrong_kind_is_refused_with_what_to_give(problem):
         jh.solve(problem, np.array([6000.0, 0.1, 3000.0]), solver="lm", report=False)
     with pytest.raises(TypeError, match=r"missing \['c'\]"):
         jh.solve(problem, {"a": 6000.0, "k": 3000.0}, solver="lm", report=False)
+
+
+def test_solver_names_in_any_case_and_a_count_of_starts_is_explained(problem):
+    from jaxhyst.identify.solvers import make_solver
+
+    assert type(make_solver("LM")) is type(make_solver("lm"))
+    with pytest.raises(TypeError, match=r"not their number.*\(8, 3\)"):
+        jh.multistart(problem, 8)

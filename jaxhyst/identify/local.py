@@ -424,6 +424,12 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
     ``starts``: box coordinates of shape (K, n_free), or a batch of parameters. The batch
     runs until its slowest member stops, so ``max_steps`` matters. The outcome is the
     best start's. ``progress`` as for `solve`."""
+    if isinstance(starts, (int, np.integer)) and not isinstance(starts, bool):
+        n = problem.space.n_free
+        raise TypeError(
+            f"multistart takes the starts themselves, not their number: e.g. {starts} "
+            f"starts spread over the box as box coordinates, jax.random.uniform("
+            f"jax.random.PRNGKey(0), ({starts}, {n})), or a batch of parameters.")
     z0s = start_z(problem, starts)
     if z0s.ndim != 2:
         raise ValueError("multistart needs a batch of starts, shape (K, n_free).")

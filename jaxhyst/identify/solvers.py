@@ -213,14 +213,15 @@ assert tuple(SOLVERS) == SOLVER_NAMES
 
 
 def make_solver(solver, rtol: float = 1e-10, atol: float = 1e-12):
-    """An Optimistix solver from a name of `SOLVERS` (with Cauchy termination
+    """An Optimistix solver from a name of `SOLVERS` (any case; with Cauchy termination
     tolerances ``rtol``/``atol``), or ``solver`` itself if it already is an Optimistix
     least-squares solver or minimiser."""
     if isinstance(solver, str):
-        if solver not in SOLVERS:
+        key = solver.strip().lower()  # ("LM" is lm)
+        if key not in SOLVERS:
             raise ValueError(f"Unknown solver {solver!r}; choose one of {list(SOLVERS)} or "
                              "pass an Optimistix least-squares solver or minimiser.")
-        return SOLVERS[solver](rtol, atol)
+        return SOLVERS[key](rtol, atol)
     if isinstance(solver, (optx.AbstractLeastSquaresSolver, optx.AbstractMinimiser)):
         return solver
     raise TypeError(f"solver must be a name ({list(SOLVERS)}) or an Optimistix "
