@@ -162,6 +162,8 @@ def test_spaces_round_trip_for_parameters_loops_and_any_pytree():
     assert tree.names == ("g", "w[0]") and float(p["w"][1]) == 0.3 and float(p["g"]) == 1.5
     with pytest.raises(ValueError, match="nothing to identify"):
         ParameterSpace(jh.TABLE1_BOUNDS, fixed=jh.TABLE1_TRUE.to_dict())
+    with pytest.raises(TypeError, match=r"fixed needs the values to hold.*'Ms': …"):
+        ParameterSpace(jh.TABLE1_BOUNDS, fixed=["Ms"])  # (was read as {'M': 's'})
 
 
 def test_fixed_parameters_stay_exactly_fixed():

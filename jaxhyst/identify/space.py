@@ -75,6 +75,13 @@ class ParameterSpace(eqx.Module):
         if not isinstance(bounds, Bounds):
             raise TypeError(f"bounds must be jaxhyst.Bounds; got {type(bounds).__name__} "
                             "(for another pytree of parameters use ParameterSpace.for_tree).")
+        if fixed is not None and not isinstance(fixed, dict):
+            example = ", ".join(f"{n!r}: …" for n in list(fixed)[:2]) if isinstance(
+                fixed, (list, tuple, set)) else "'Ms': 7.65e5"
+            raise TypeError(f"fixed needs the values to hold, as {{name: value}} in SI units "
+                            f"(e.g. {{{example}}}); got {type(fixed).__name__}. "
+                            "(synthetic_problem takes a list of names and holds the true "
+                            "values.)")
         fixed = dict(fixed or {})
         unknown = [n for n in fixed if n not in NAMES]
         if unknown:
