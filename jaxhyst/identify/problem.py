@@ -8,7 +8,8 @@ model − data in that group's unit. Everything else is defined once, here:
 - the problem's residual vector r (``residuals(z, args)`` in Optimistix form, or
   ``residuals_u(u)`` in box coordinates) concatenates each group divided by its
   normaliser — its noise level σ when given (then the cost is a χ²), else
-  scale·√(N/weight) (scale = max|data|: a mean squared error relative to the data's
+  scale·√(N/weight) (scale = max|data| in the built-in problems, the residuals' size
+  in the box for a `ResidualProblem`: a mean squared error relative to the data's
   size, O(1) in any units) — followed by the priors' (θ − μ)/sd;
 - the **cost** (the objective every solver minimises and every result reports) is Σ r²;
 - the GA's fitness is F = 1/√(c1 + cost) (`Problem` keeps the paper's eq 35 in SI units).
