@@ -138,7 +138,7 @@ def test_residuals_in_metres_without_noise_levels_still_reach_the_optimum():
 
 
 def test_a_start_of_the_wrong_kind_is_refused_with_what_to_give(problem):
-    with pytest.raises(ValueError, match=r"box coordinates u in \[0, 1\].*'a', 'c', 'k'"):
+    with pytest.raises(ValueError, match=r"must lie in \[0, 1\].*a, c, k.*'a', 'c', 'k'"):
         jh.solve(problem, np.array([6000.0, 0.1, 3000.0]), solver="lm", report=False)
     with pytest.raises(TypeError, match=r"missing \['c'\]"):
         jh.solve(problem, {"a": 6000.0, "k": 3000.0}, solver="lm", report=False)
@@ -148,5 +148,5 @@ def test_solver_names_in_any_case_and_a_count_of_starts_is_explained(problem):
     from jaxhyst.identify.solvers import make_solver
 
     assert type(make_solver("LM")) is type(make_solver("lm"))
-    with pytest.raises(TypeError, match=r"not their number.*\(8, 3\)"):
+    with pytest.raises(ValueError, match=r"not their number.*\(8, 3\)"):
         jh.multistart(problem, 8)

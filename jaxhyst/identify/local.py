@@ -293,9 +293,9 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
         kind = (f"; to start from values of the parameters give {_kind(space)}"
                 if tree_kind else "")
         raise ValueError(
-            f"A start given as an array is read as box coordinates u in [0, 1] (one per "
-            f"free parameter, {', '.join(space.names)}); got values from "
-            f"{np.nanmin(u_np):.6g} to {np.nanmax(u_np):.6g}{kind}.")
+            f"Box coordinates u of a start must lie in [0, 1] (an array start is read as "
+            f"box coordinates, one per free parameter: {', '.join(space.names)}); got "
+            f"values from {np.nanmin(u_np):.6g} to {np.nanmax(u_np):.6g}{kind}.")
     return _z_from_u_jit(u)
 
 
@@ -312,8 +312,8 @@ def _start_kind_message(space, start) -> str:
     if isinstance(start, dict) and space.treedef.node_data()[0] is dict:
         keys = set(space.treedef.node_data()[1])
         missing, unknown = sorted(keys - set(start)), sorted(set(start) - keys)
-        return (f"start has the keys {sorted(start)}, but this problem's parameters are "
-                f"{sorted(keys)} (missing {missing}, unknown {unknown}); give all of them.")
+        return (f"start must be {_kind(space)} (or box coordinates u in [0, 1]); it has "
+                f"the keys {sorted(start)}: missing {missing}, unknown {unknown}.")
     return (f"start must be {_kind(space)} or box coordinates u in [0, 1] (one per free "
             f"parameter, {', '.join(space.names)}); got {type(start).__name__}.")
 
@@ -426,7 +426,7 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
     best start's. ``progress`` as for `solve`."""
     if isinstance(starts, (int, np.integer)) and not isinstance(starts, bool):
         n = problem.space.n_free
-        raise TypeError(
+        raise ValueError(
             f"multistart takes the starts themselves, not their number: e.g. {starts} "
             f"starts spread over the box as box coordinates, jax.random.uniform("
             f"jax.random.PRNGKey(0), ({starts}, {n})), or a batch of parameters.")

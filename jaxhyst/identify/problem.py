@@ -460,11 +460,11 @@ def _residual_sizes(fn, space, data, single: bool, names) -> dict:
     for u in (0.5, 0.25, 0.75):
         try:
             out = evaluate(space.params_from_u(jnp.full(space.n_free, u)), data)
-        except Exception:  # noqa: BLE001 - the solve will report the user's error
-            continue
-        out = {"residuals": out} if single else out
-        for name in names:
-            r = np.asarray(out[name], dtype=np.float64)
+            out = {"residuals": out} if single else out
+            values = {name: np.asarray(out[name], dtype=np.float64) for name in names}
+        except Exception:  # noqa: BLE001 - the solve will report the user's error (or,
+            continue  # built inside a trace, the values are not known: scale 1)
+        for name, r in values.items():
             rms = float(np.sqrt(np.mean(np.square(r)))) if r.size else 0.0
             if np.isfinite(rms):
                 sizes[name] = max(sizes[name], rms)
