@@ -300,8 +300,11 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
 
 
 def _kind(space) -> str:
-    """The problem's parameters in words, for messages about a start."""
-    node, keys = space.treedef.node_data()
+    """The problem's parameters in words, for messages about a start (a space over a
+    single array takes box coordinates only)."""
+    node, keys = space.treedef.node_data() or (None, None)
+    if node is None:
+        return "box coordinates"
     if node is dict:
         return "a dict with the keys " + ", ".join(map(repr, keys))
     return f"a {node.__name__} (like the problem's bounds)"
@@ -309,8 +312,12 @@ def _kind(space) -> str:
 
 def _start_kind_message(space, start) -> str:
     """Why ``start`` is neither this problem's parameters nor box coordinates."""
-    if isinstance(start, dict) and space.treedef.node_data()[0] is dict:
-        keys = set(space.treedef.node_data()[1])
+    node, keys = space.treedef.node_data() or (None, None)
+    if node is None:
+        return (f"start must be box coordinates u in [0, 1] (one per free parameter, "
+                f"{', '.join(space.names)}); got {type(start).__name__}.")
+    if isinstance(start, dict) and node is dict:
+        keys = set(keys)
         missing, unknown = sorted(keys - set(start)), sorted(set(start) - keys)
         return (f"start must be {_kind(space)} (or box coordinates u in [0, 1]); it has "
                 f"the keys {sorted(start)}: missing {missing}, unknown {unknown}.")

@@ -18,7 +18,7 @@ exactly.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import equinox as eqx
 import jax
@@ -75,7 +75,7 @@ class ParameterSpace(eqx.Module):
         if not isinstance(bounds, Bounds):
             raise TypeError(f"bounds must be jaxhyst.Bounds; got {type(bounds).__name__} "
                             "(for another pytree of parameters use ParameterSpace.for_tree).")
-        if fixed is not None and not isinstance(fixed, dict):
+        if fixed and not isinstance(fixed, Mapping):
             example = ", ".join(f"{n!r}: …" for n in list(fixed)[:2]) if isinstance(
                 fixed, (list, tuple, set)) else "'Ms': 7.65e5"
             raise TypeError(f"fixed needs the values to hold, as {{name: value}} in SI units "
