@@ -142,6 +142,13 @@ def test_a_start_of_the_wrong_kind_is_refused_with_what_to_give(problem):
         jh.solve(problem, np.array([6000.0, 0.1, 3000.0]), solver="lm", report=False)
     with pytest.raises(TypeError, match=r"missing \['c'\]"):
         jh.solve(problem, {"a": 6000.0, "k": 3000.0}, solver="lm", report=False)
+    import types
+
+    from jaxhyst.identify.local import start_z
+
+    flat = types.SimpleNamespace(space=jh.ParameterSpace.for_tree(np.zeros(2), np.ones(2)))
+    with pytest.raises(TypeError, match=r"start must be box coordinates u in \[0, 1\]"):
+        start_z(flat, {"a": 1.0})  # a space over one array takes box coordinates only
 
 
 def test_solver_names_in_any_case_and_a_count_of_starts_is_explained(problem):
