@@ -127,6 +127,16 @@ def test_jaxhyst_first_touched_inside_a_jitted_function_leaks_no_tracer():
     assert r.stdout.split() == ["7012.0", "7.85e-05", "10518.0", "True"]
 
 
+def test_parameters_from_a_host_array_compile_nothing(caplog):
+    import logging
+
+    X = np.stack([np.asarray(jh.TABLE1_TRUE.to_array())] * 3) * np.array([[1.0], [1.1], [0.9]])
+    with jax.log_compiles(), caplog.at_level(logging.WARNING):
+        p = jh.Parameters.from_array(X)
+    assert not [r for r in caplog.records if "Finished XLA compilation" in r.getMessage()]
+    np.testing.assert_array_equal(np.asarray(p.to_array()), X)
+
+
 def test_jittered_time_stamps_give_the_exact_nonuniform_result():
     base = _drive()
     t = np.asarray(base.t) + 4e-5 * float(base.dt) * np.sin(np.arange(base.n_samples))
