@@ -74,7 +74,21 @@ def simulate_unchecked(
     substeps: int = DEFAULT_SUBSTEPS,
 ) -> Simulation:
     """`simulate` without input validation: the pure function for jit/vmap/grad inside
-    solvers. Same arguments and result as `simulate`."""
+    solvers. Same arguments and result as `simulate`.
+
+    Called with concrete values (outside any transformation) it runs compiled, like
+    `simulate`; under ``jax.jit``, ``grad``, ``vmap``… it is traced into your program.
+    Wrap transformations in ``jax.jit``: ``jax.jacfwd(f)(x)`` called directly runs the
+    simulation operation by operation (README's Jacobian: 13.5 s the first time and
+    0.9 s per call, against 3.5 s and 1.4 ms jitted, on 2 cores)."""
+    if not any(isinstance(leaf, jax.core.Tracer)
+               for leaf in jax.tree.leaves((params, actuator, drive))):
+        return _simulate_jit(params, actuator, drive, variant, substeps)
+    return _simulate(params, actuator, drive, variant, substeps)
+
+
+def _simulate(params, actuator, drive, variant, substeps) -> Simulation:
+    """The simulation itself (`simulate_unchecked`)."""
     p = params
     S = _static_substeps(substeps)
     t, H = drive.t, drive.H
@@ -109,7 +123,7 @@ def simulate_unchecked(
     )
 
 
-_simulate_jit = eqx.filter_jit(simulate_unchecked)
+_simulate_jit = eqx.filter_jit(_simulate)
 
 
 def _static_substeps(substeps) -> int:
