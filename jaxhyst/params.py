@@ -88,8 +88,8 @@ class Parameters(eqx.Module):
         """Inverse of `to_array`: ``x`` has shape (..., 10) in the order of `NAMES`."""
         # host values are split on the host (indexing a device array eagerly compiles
         # a small program per kind of index at the first call)
-        x = jnp.asarray(x, dtype=jnp.float64) if isinstance(x, jax.Array) else np.asarray(
-            x, dtype=np.float64)
+        on_host = not any(isinstance(leaf, jax.Array) for leaf in jax.tree.leaves(x))
+        x = np.asarray(x, dtype=np.float64) if on_host else jnp.asarray(x, dtype=jnp.float64)
         if x.shape[-1:] != (len(NAMES),):
             raise ValueError(
                 f"Parameters.from_array needs a last axis of length {len(NAMES)} "

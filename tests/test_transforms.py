@@ -135,6 +135,10 @@ def test_parameters_from_a_host_array_compile_nothing(caplog):
         p = jh.Parameters.from_array(X)
     assert not [r for r in caplog.records if "Finished XLA compilation" in r.getMessage()]
     np.testing.assert_array_equal(np.asarray(p.to_array()), X)
+    # a list holding a traced value still goes through JAX
+    row = X[0].tolist()
+    doubled = jax.jit(lambda a: jh.Parameters.from_array([*row[:2], a, *row[3:]]).a * 2)
+    assert float(doubled(7000.0)) == 14000.0
 
 
 def test_simulate_unchecked_called_directly_runs_compiled(caplog):
