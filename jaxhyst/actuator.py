@@ -7,9 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-
-def _concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
+from .params import is_concrete
 
 
 class _Label(str):
@@ -51,7 +49,7 @@ class Actuator(eqx.Module):
     def __init__(self, Ar, lr, n=None, Hb=0.0, name: str = "actuator"):
         for field, value, rule in (("Ar", Ar, "> 0 (m^2)"), ("lr", lr, "> 0 (m)"),
                                    ("n", n, "> 0 (1/m) or None"), ("Hb", Hb, "finite (A/m)")):
-            if value is None or not _concrete(value):
+            if value is None or not is_concrete(value):
                 continue
             try:
                 v = np.asarray(value, dtype=np.float64)

@@ -18,12 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .actuator import Actuator
-
-
-def _concrete(x) -> bool:
-    """Whether ``x`` (a number, array or list of them) holds no tracer."""
-    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x))
-
+from .params import is_concrete
 
 #: Largest relative deviation of a time step from the mean for a drive to count as
 #: uniformly sampled (the structural step then corrects each step to second order).
@@ -83,7 +78,7 @@ class Drive(eqx.Module):
                 f"Drive run_in={run_in} must be in [0, {t.shape[0] - 2}] so that at least "
                 "two samples are observed."
             )
-        if _concrete(H_given):
+        if is_concrete(H_given):
             Hn = np.asarray(H_given, dtype=np.float64)
             if not np.all(np.isfinite(Hn)):
                 bad = np.flatnonzero(~np.isfinite(Hn))[:5]
@@ -92,7 +87,7 @@ class Drive(eqx.Module):
                     "remove or interpolate those samples."
                 )
             _check_field_range(Hn, "Drive field H")
-        if _concrete(t_given):
+        if is_concrete(t_given):
             tn = np.asarray(t_given, dtype=np.float64)
             if not np.all(np.isfinite(tn)):
                 raise ValueError(
@@ -221,7 +216,7 @@ def _check_field_range(H, what: str, fix: str = "check its unit (A/m)") -> None:
 
 def _check_number(name, value, rule, unit):
     """One-line error for a concrete non-finite (or out-of-range) builder argument."""
-    if not _concrete(value):
+    if not is_concrete(value):
         return
     v = np.asarray(value, dtype=np.float64)
     if v.ndim or not np.isfinite(v) or not rule(float(v)):

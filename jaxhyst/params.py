@@ -128,8 +128,10 @@ class Parameters(eqx.Module):
         return "Parameters(\n" + "\n".join(rows) + "\n)"
 
 
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
+def is_concrete(x) -> bool:
+    """Whether ``x`` (a number, an array, or any pytree of them) holds no tracer: its
+    values can be inspected (they cannot inside jit/grad/vmap)."""
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x))
 
 
 #: Physical range of each parameter: name → (test on a numpy value, the rule in words).
@@ -183,7 +185,7 @@ def check_parameters(p: Parameters) -> None:
     rules = PHYSICAL_RULES
     for name in NAMES:
         value = getattr(p, name)
-        if not _is_concrete(value):
+        if not is_concrete(value):
             continue
         v = np.asarray(value)
         if not np.all(np.isfinite(v)):
@@ -203,7 +205,7 @@ class Bounds(eqx.Module):
     upper: Parameters
 
     def __check_init__(self):
-        if not all(map(_is_concrete, jax.tree.leaves(self))):
+        if not is_concrete(self):
             return  # bounds built inside a trace: nothing to inspect
         lo = np.array([np.asarray(getattr(self.lower, n), dtype=np.float64) for n in NAMES])
         hi = np.array([np.asarray(getattr(self.upper, n), dtype=np.float64) for n in NAMES])

@@ -177,17 +177,8 @@ def _finish_one(problem, solver, static, carry):
         # (before the first accepted step the state holds placeholder zeros:
         # `stepped_solve` evaluates those end points itself)
         known = state.num_accepted_steps > 0
-        cost, residuals = jnp.sum(r**2), _split_groups(problem, r)
+        cost, residuals = jnp.sum(r**2), problem.groups_from_residuals(r)
     return y, _code(result), steps, cost, final_step_size(state), residuals, known
-
-
-def _split_groups(problem, r):
-    """The group residuals (each group's unit, flattened) in a residual vector ``r``."""
-    out, i = [], 0
-    for g in problem.groups:
-        out.append(r[i:i + g.size] * g.normaliser)
-        i += g.size
-    return tuple(out)
 
 
 _running_jit = jax.jit(_running)  # (op by op, each operation would compile on its own)
@@ -300,11 +291,9 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
 
 
 def _kind(space) -> str:
-    """The problem's parameters in words, for messages about a start (a space over a
-    single array takes box coordinates only)."""
-    node, keys = space.treedef.node_data() or (None, None)
-    if node is None:
-        return "box coordinates"
+    """The parameters of a space over a pytree (not a single array) in words, for
+    messages about a start."""
+    node, keys = space.treedef.node_data()
     if node is dict:
         return "a dict with the keys " + ", ".join(map(repr, keys))
     return f"a {node.__name__} (like the problem's bounds)"
@@ -312,17 +301,16 @@ def _kind(space) -> str:
 
 def _start_kind_message(space, start) -> str:
     """Why ``start`` is neither this problem's parameters nor box coordinates."""
-    node, keys = space.treedef.node_data() or (None, None)
-    if node is None:
-        return (f"start must be box coordinates u in [0, 1] (one per free parameter, "
-                f"{', '.join(space.names)}); got {type(start).__name__}.")
+    coordinates = (f"box coordinates u in [0, 1] (one per free parameter, "
+                   f"{', '.join(space.names)})")
+    if jax.tree_util.treedef_is_leaf(space.treedef):  # (a space over a single array)
+        return f"start must be {coordinates}; got {type(start).__name__}."
+    node, keys = space.treedef.node_data()
     if isinstance(start, dict) and node is dict:
-        keys = set(keys)
-        missing, unknown = sorted(keys - set(start)), sorted(set(start) - keys)
+        missing, unknown = sorted(set(keys) - set(start)), sorted(set(start) - set(keys))
         return (f"start must be {_kind(space)} (or box coordinates u in [0, 1]); it has "
                 f"the keys {sorted(start)}: missing {missing}, unknown {unknown}.")
-    return (f"start must be {_kind(space)} or box coordinates u in [0, 1] (one per free "
-            f"parameter, {', '.join(space.names)}); got {type(start).__name__}.")
+    return f"start must be {_kind(space)} or {coordinates}; got {type(start).__name__}."
 
 
 _z_from_u_jit = jax.jit(z_from_u)

@@ -206,6 +206,15 @@ class AbstractProblem(eqx.Module):
             parts.append((x[idx] - mean) / sd)
         return jnp.concatenate(parts)
 
+    def groups_from_residuals(self, r) -> tuple:
+        """The inverse of `residuals_params` for the groups: each group's residuals (its
+        unit, flattened) from the residual vector ``r`` (the priors' entries dropped)."""
+        out, i = [], 0
+        for g in self.groups:
+            out.append(r[i:i + g.size] * g.normaliser)
+            i += g.size
+        return tuple(out)
+
     def residuals_u(self, u) -> jax.Array:
         """The residual vector at box coordinates u ∈ [0, 1]ⁿ (the GA's)."""
         return self.residuals_params(self.space.params_from_u(u))
