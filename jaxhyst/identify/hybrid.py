@@ -354,7 +354,7 @@ def _final_solve(problem, solver, z0, max_steps: int, progress: int, label: str)
     progress with the run's, and an interruption returns the point reached. Returns
     (z, code, steps, cost, interrupted) as Python values (z an array)."""
     (z, code, steps, cost, _, _), stopped = stepped_solve(
-        problem, solver, z0[None], max_steps, bool(progress), label)
+        problem, solver, np.asarray(z0)[None], max_steps, bool(progress), label)
     return z[0], int(code[0]), int(steps[0]), float(cost[0]), stopped
 
 

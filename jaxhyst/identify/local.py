@@ -213,8 +213,8 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int,
                   progress: float | bool = False, label: str = "local"):
     """Solve from each start of ``z0s`` (K, n) in one vmapped batch, stepped from Python;
     returns (z, code, steps, cost, final step size, group residuals flattened) batched
-    over K and whether it was interrupted. ``progress``: seconds between progress lines
-    on stderr (True = 2 s; a live line on a terminal). Ctrl-C/SIGTERM
+    over K, as NumPy arrays, and whether it was interrupted. ``progress``: seconds
+    between progress lines on stderr (True = 2 s; a live line on a terminal). Ctrl-C/SIGTERM
     (`jaxhyst._interrupt`) stops after the current chunk of steps with the points
     reached."""
     from .._interrupt import interruptible
@@ -226,10 +226,11 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int,
     carry, static = _init_jit(problem, solver, z0s)
     interrupted, chunk, last = False, 1, t0
     with interruptible() as stop:
-        while np.any(np.asarray(_running_jit(carry, jnp.asarray(max_steps)))):
+        # (host scalars: jnp.asarray of one compiles a program of its own on first use)
+        while np.any(np.asarray(_running_jit(carry, np.int64(max_steps)))):
             c0 = time.perf_counter()
-            carry, costs = _advance_jit(problem, solver, static, carry, jnp.asarray(chunk),
-                                        jnp.asarray(max_steps), bool(every))  # no recompile
+            carry, costs = _advance_jit(problem, solver, static, carry, np.int64(chunk),
+                                        np.int64(max_steps), bool(every))  # no recompile
             jax.block_until_ready(carry)
             now = time.perf_counter()
             if now - c0 < 0.25:  # keep each dispatch near a quarter second
@@ -243,10 +244,11 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int,
             if stop():
                 interrupted = True
                 break
-    *out, known = _finish_jit(problem, solver, static, carry)
+    # on the host at once (indexing device arrays compiles a small program per shape)
+    *out, known = jax.device_get(_finish_jit(problem, solver, static, carry))
     missing = np.flatnonzero(~np.asarray(known))  # solves that accepted no step
     if missing.size:
-        out[3], out[5] = np.array(out[3]), [np.array(r) for r in out[5]]
+        out[3], out[5] = np.array(out[3]), [np.array(r) for r in out[5]]  # (writable)
         for k in missing:
             cost, residuals = _evaluate_at(problem, out[0][k])
             out[3][k] = float(cost)
@@ -403,7 +405,8 @@ def solve(problem: AbstractProblem, start, solver="lm", max_steps: int = 200,
     solver_obj = make_solver(solver, rtol, atol)
     t0 = time.perf_counter()
     (z, code, steps, cost, _, residuals), interrupted = stepped_solve(
-        problem, solver_obj, z0[None], max_steps, progress, solver_name(solver))
+        problem, solver_obj, np.asarray(z0)[None], max_steps, progress,
+        solver_name(solver))
     wall = time.perf_counter() - t0
     outcome = Outcome.interrupted if interrupted else CODES[int(code[0])]
     return summarize(problem, z[0], steps[0], outcome, solver_name(solver), wall,
