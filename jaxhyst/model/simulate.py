@@ -34,6 +34,21 @@ from .structure import hermite_taylor_coefficients, structural_response
 
 PAPER_VARIANT = EnergyBasedJA()  # immutable Module: a safe shared default
 
+try:  # (tested with jax 0.10.2; JAX marks it unsafe: it reads JAX's trace stack)
+    from jax.extend.core import unsafe_am_i_under_a_jit_DO_NOT_USE as _under_jit
+except ImportError:  # pragma: no cover - older or newer JAX: traced calls stay inline
+    _under_jit = None
+
+
+def _outside_jit(tree) -> bool:
+    """Whether a call with the inputs ``tree`` runs outside any jit trace: with concrete
+    values, or under ``jax.grad``/``jacfwd``/``vmap``… called directly. Such a call is
+    best sent to the compiled simulation (one program instead of thousands of operations
+    dispatched one at a time); inside a jit trace the simulation is traced inline."""
+    if is_concrete(tree):
+        return True
+    return _under_jit is not None and not _under_jit()
+
 
 class Simulation(eqx.Module):
     """Every signal of one simulation, per drive sample, shape (T,) (or (P, T) batched).
@@ -76,12 +91,12 @@ def simulate_unchecked(
     """`simulate` without input validation: the pure function for jit/vmap/grad inside
     solvers. Same arguments and result as `simulate`.
 
-    Called with concrete values (outside any transformation) it runs compiled, like
-    `simulate`; under ``jax.jit``, ``grad``, ``vmap``… it is traced into your program.
-    Wrap transformations in ``jax.jit``: ``jax.jacfwd(f)(x)`` called directly runs the
-    simulation operation by operation (README's Jacobian: 13.5 s the first time and
-    0.9 s per call, against 3.5 s and 1.4 ms jitted, on 2 cores)."""
-    if is_concrete((params, actuator, drive)):
+    Outside ``jax.jit`` (concrete values, or ``jax.grad``, ``jacfwd``, ``vmap``… called
+    directly) it runs as one compiled program, like `simulate`; inside a jit trace it is
+    traced into your program. Still wrap your own transformations in ``jax.jit``: the
+    rest of your function otherwise runs operation by operation
+    (docs/derivatives.md)."""
+    if _outside_jit((params, actuator, drive)):
         return _simulate_jit(params, actuator, drive, variant, substeps)
     return _simulate(params, actuator, drive, variant, substeps)
 
