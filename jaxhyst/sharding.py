@@ -17,7 +17,9 @@ populations so).
 hundreds of members, a simulation's intermediates (M and its slopes, the forcing, per
 member and substep) no longer fit in the caches; run block by block they do (P = 1000 on
 2 cores: 325 → 236 ns per individual·sample on one device, 204 → 136 on two host
-devices; `benchmarks/RESULTS.md`).
+devices; `benchmarks/RESULTS.md`). A plain ``jax.vmap`` of `simulate_unchecked` gets
+part of this by itself: the simulation's work after its time loop runs in blocks under
+any large vmap (`jaxhyst.model.simulate`).
 
 `map_sharded` splits a batch axis inside a traced computation instead (`JointProblem`'s
 loops axis, so that one local solve uses every device); under an outer ``vmap`` (a GA

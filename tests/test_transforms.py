@@ -366,6 +366,32 @@ def test_a_batch_of_one_runs_the_unbatched_loops_with_the_same_values():
     np.testing.assert_allclose(J1, J, rtol=0, atol=1e-13 * float(jnp.max(jnp.abs(J))))
 
 
+def test_a_large_vmap_runs_after_the_loop_in_blocks_with_the_same_values():
+    # P = 260 members (≥ 4 blocks of 64): a plain jax.vmap runs the work after the time
+    # loop block by block; the values, and derivatives through the vmap, are those of the
+    # same members in batches too small to be split (130 each)
+    drive = _drive()
+    lo, hi = jh.TABLE1_BOUNDS.lower.to_array(), jh.TABLE1_BOUNDS.upper.to_array()
+    X = lo + (hi - lo) * jax.random.uniform(jax.random.PRNGKey(5), (260, 10))
+
+    def y(x):
+        return simulate_unchecked(jh.Parameters.from_array(x), jh.ACTUATOR1, drive).y
+
+    batched = jax.jit(jax.vmap(y))
+    assert "length=5" in str(jax.make_jaxpr(jax.vmap(y))(X))  # a map over 5 blocks
+    whole = batched(X)
+    halves = jnp.concatenate([batched(X[:130]), batched(X[130:])])
+    np.testing.assert_allclose(whole, halves, rtol=1e-13, atol=1e-13 * float(
+        jnp.max(jnp.abs(halves))))
+
+    def total(X):
+        return jnp.sum(jax.vmap(y)(X) ** 2) * 1e12
+
+    g = jax.jit(jax.grad(total))
+    np.testing.assert_allclose(g(X), jnp.concatenate([g(X[:130]), g(X[130:])]),
+                               rtol=1e-10, atol=0)
+
+
 def test_batched_parameters_given_to_simulate_are_refused_with_the_fix():
     batch = jh.Parameters.from_array(jnp.stack([jh.TABLE1_TRUE.to_array()] * 3))
     with pytest.raises(ValueError, match="simulate_batch"):

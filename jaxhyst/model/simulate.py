@@ -34,10 +34,11 @@ from .structure import hermite_taylor_coefficients, structural_response
 
 PAPER_VARIANT = EnergyBasedJA()  # immutable Module: a safe shared default
 
-try:  # (tested with jax 0.10.2; JAX marks it unsafe: it reads JAX's trace stack)
+try:  # (tested with jax 0.10.2; JAX marks them unsafe: they read JAX's trace stack)
     from jax.extend.core import unsafe_am_i_under_a_jit_DO_NOT_USE as _under_jit
-except ImportError:  # pragma: no cover - older or newer JAX: traced calls stay inline
-    _under_jit = None
+    from jax.extend.core import unsafe_am_i_under_a_vmap_DO_NOT_USE as _under_vmap
+except ImportError:  # pragma: no cover - older or newer JAX: traced calls stay inline,
+    _under_jit = _under_vmap = None  # and every trace takes the batch-aware form
 
 
 def _outside_jit(tree) -> bool:
@@ -103,10 +104,25 @@ def simulate_unchecked(
 
 def _simulate(params, actuator, drive, variant, substeps) -> Simulation:
     """The simulation itself (`simulate_unchecked`)."""
-    p = params
     S = _static_substeps(substeps)
-    t, H = drive.t, drive.H
-    M_sub, k_sub = magnetization_path(p, H, variant=variant, substeps=S)  # (N, S), (N, S+1)
+    M_sub, k_sub = magnetization_path(params, drive.H, variant=variant, substeps=S)
+    args = (variant, params, actuator.Ar, drive.t, drive.H, M_sub, k_sub)
+    if _under_vmap is None or _under_vmap():  # its batch rule in blocks (`_signals`)
+        M, Man, Mirr, lam, y, v = _signals(*args, uniform=drive.uniform, substeps=S)
+    else:  # (the same without the wrappers: less to trace for grad)
+        M, Man, Mirr, lam, y, v = _after_the_loop(*args, drive.uniform, S)
+    return Simulation(t=drive.t, H=drive.H, M=M, Man=Man, Mirr=Mirr, lam=lam, y=y,
+                      velocity=v, strain=y / actuator.lr, run_in=drive.run_in)
+
+
+_simulate_jit = eqx.filter_jit(_simulate)
+
+
+def _after_the_loop(variant, p, Ar, t, H, M_sub, k_sub, uniform: bool, S: int):
+    """Every signal but t and H from the magnetization path (`magnetization_path`'s
+    M_sub (N, S) and k_sub (N, S + 1)): (M, Man, Mirr, λ, y, ẏ) at the samples, shape (T,)
+    each. y and ẏ come from λ and dλ/dt at the substep points, their cubic Hermite
+    forcing and the structural recurrence (exact for that forcing)."""
     zero = jnp.zeros((1,), dtype=H.dtype)
     M = jnp.concatenate([zero, M_sub[:, -1]])
     M_points = jnp.concatenate([M[:-1, None], M_sub], axis=1)  # u_0 … u_S, (N, S + 1)
@@ -115,29 +131,83 @@ def _simulate(params, actuator, drive, variant, substeps) -> Simulation:
     m = M_points / p.Ms
     lam = 1.5 * p.lambda_s * m * m
     dlam = 3.0 * p.lambda_s * m * (k_sub * dH_dt[:, None] / p.Ms)
-    force_gain = actuator.Ar * p.E / p.Mz  # u = Ar·E·λ/Mz, m/s² per unit λ
+    force_gain = Ar * p.E / p.Mz  # u = Ar·E·λ/Mz, m/s² per unit λ
     w = force_gain * hermite_taylor_coefficients(lam[:, :-1], dlam[:, :-1], lam[:, 1:],
                                                  dlam[:, 1:], h[:, None])  # (N, S, 4)
-    x = structural_response(p, jnp.repeat(h, S), w.reshape(-1, 4), drive.uniform)
+    x = structural_response(p, jnp.repeat(h, S), w.reshape(-1, 4), uniform)
     x = x[S - 1 :: S]  # at the samples
-    y = jnp.concatenate([zero, x[:, 0]])
-    v = jnp.concatenate([zero, x[:, 1]])
     Man, _ = anhysteretic(H, M, p)
-    return Simulation(
-        t=t,
-        H=H,
-        M=M,
-        Man=Man,
-        Mirr=variant.irreversible_magnetization(H, M, p),
-        lam=magnetostriction(M, p.Ms, p.lambda_s),
-        y=y,
-        velocity=v,
-        strain=y / actuator.lr,
-        run_in=drive.run_in,
-    )
+    return (M, Man, variant.irreversible_magnetization(H, M, p),
+            magnetostriction(M, p.Ms, p.lambda_s),
+            jnp.concatenate([zero, x[:, 0]]), jnp.concatenate([zero, x[:, 1]]))
 
 
-_simulate_jit = eqx.filter_jit(_simulate)
+def _splice(leaves, positions, values):
+    """``leaves`` with the entries at ``positions`` replaced by ``values``."""
+    leaves = list(leaves)
+    for i, value in zip(positions, values, strict=True):
+        leaves[i] = value
+    return leaves
+
+
+_IN_BLOCKS: dict = {}
+
+
+def _after_the_loop_in_blocks(uniform: bool, S: int):
+    """`_after_the_loop` whose ``jax.vmap`` runs in blocks (`vmap_blocked`: a batch of hundreds
+    on the CPU, 64 members at a time). Vectorized over a whole large population its
+    (P, J, 4) forcing and the recurrence's copies of it no longer fit the caches (the
+    loop itself costs the same either way). Other batches, and other backends, run as
+    ``jax.vmap`` would."""
+    if (uniform, S) not in _IN_BLOCKS:
+
+        @jax.custom_batching.custom_vmap
+        def single(*args):
+            return _after_the_loop(*args, uniform, S)
+
+        @single.def_vmap
+        def batch(axis_size, in_batched, *args):
+            leaves, tree = jax.tree.flatten(args)
+            flags = jax.tree.leaves(in_batched)
+            batched = [i for i, b in enumerate(flags) if b]
+            if not batched:  # (jvp of the rule asks this too)
+                out = _after_the_loop(*args, uniform, S)
+                return out, (False,) * len(out)
+
+            def one(*values):
+                args = jax.tree.unflatten(tree, _splice(leaves, batched, values))
+                return _after_the_loop(*args, uniform, S)
+
+            out = vmap_blocked(one, axis_size)(*[leaves[i] for i in batched])
+            return out, (True,) * len(out)
+
+        _IN_BLOCKS[uniform, S] = single
+    return _IN_BLOCKS[uniform, S]
+
+
+@eqx.filter_custom_jvp
+def _signals(variant, p, Ar, t, H, M_sub, k_sub, *, uniform: bool, substeps: int):
+    """`_after_the_loop`, run in blocks under a large ``jax.vmap``
+    (`_after_the_loop_in_blocks`); its derivatives are `_after_the_loop`'s own (JAX does
+    not differentiate a custom batching rule in reverse mode, so the rule stays out of
+    every derivative)."""
+    return _after_the_loop_in_blocks(uniform, substeps)(variant, p, Ar, t, H, M_sub, k_sub)
+
+
+@_signals.def_jvp
+def _signals_jvp(primals, tangents, *, uniform, substeps):
+    leaves, tree = jax.tree.flatten(primals, is_leaf=lambda x: x is None)
+    dots = jax.tree.leaves(tangents, is_leaf=lambda x: x is None)  # (None: no tangent)
+    moving = [i for i, d in enumerate(dots) if d is not None]
+    if not moving:
+        out = _signals(*primals, uniform=uniform, substeps=substeps)
+        return out, (None,) * len(out)
+
+    def signals(*values):
+        args = jax.tree.unflatten(tree, _splice(leaves, moving, values))
+        return _after_the_loop(*args, uniform, substeps)
+
+    return jax.jvp(signals, [leaves[i] for i in moving], [dots[i] for i in moving])
 
 
 def _static_substeps(substeps) -> int:
