@@ -27,6 +27,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+try:  # (jax.extend's; tested with jax 0.10.2)
+    from jax.extend.core import concrete_or_error as _concrete_or_error
+except ImportError:  # pragma: no cover - then values under transformations are not read
+    _concrete_or_error = None
+
 NAMES: tuple[str, ...] = ("Ms", "lambda_s", "a", "k", "alpha", "c", "E", "Kz", "Mz", "Cz")
 #: Parameters only the magnetostriction and the structure see: they cannot affect M or B.
 STRUCTURAL: tuple[str, ...] = ("lambda_s", "E", "Kz", "Mz", "Cz")
@@ -175,19 +180,32 @@ def check_value(name: str, value, what: str) -> float:
     return v
 
 
+def readable_value(x) -> np.ndarray | None:
+    """``x`` as a NumPy array where its value can be read: a concrete value, or the value
+    under a transformation called directly (``jax.grad(f)(x)`` without ``jax.jit``); None
+    inside jit or vmap, where it is abstract."""
+    if not isinstance(x, jax.core.Tracer):
+        return np.asarray(x)
+    if _concrete_or_error is None:  # pragma: no cover - older or newer JAX
+        return None
+    try:
+        return np.asarray(_concrete_or_error(None, x))
+    except jax.errors.ConcretizationTypeError:
+        return None
+
+
 def check_parameters(p: Parameters) -> None:
     """Raise ``ValueError`` naming the parameter if ``p`` is physically invalid.
 
     Checks (all values, batched or not): every value finite; Ms, a, k, Mz, Kz > 0;
-    λs, E ≥ 0; Cz ≥ 0; 0 ≤ c ≤ 1. Traced values (inside jit/vmap) cannot be inspected
-    and are skipped; the public `simulate` checks before tracing.
+    λs, E ≥ 0; Cz ≥ 0; 0 ≤ c ≤ 1. Values that cannot be read (traced inside jit/vmap)
+    are skipped; under ``jax.grad`` & co. called directly they are checked too.
     """
     rules = PHYSICAL_RULES
     for name in NAMES:
-        value = getattr(p, name)
-        if not is_concrete(value):
+        v = readable_value(getattr(p, name))
+        if v is None:
             continue
-        v = np.asarray(value)
         if not np.all(np.isfinite(v)):
             raise ValueError(f"Parameter {name} is not finite ({v!r}); give a finite value.")
         if name in rules:

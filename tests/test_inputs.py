@@ -145,6 +145,24 @@ def test_malformed_python_api_inputs(files):
         assert fragment in msg and "\n" not in msg, (i, msg)
 
 
+def test_simulate_under_a_transformation_called_directly_still_checks_parameters():
+    """jax.grad called without jit can read its input's value: an invalid parameter is
+    named as for a direct call, not turned into a silent NaN; under jit the values are
+    abstract and the check is skipped."""
+    import jax
+    import jax.numpy as jnp
+
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=30)
+
+    def loss(a):
+        return jnp.sum(jh.simulate(jh.TABLE1_TRUE.replace(a=a), jh.ACTUATOR1, drive).y)
+
+    with pytest.raises(ValueError, match="Parameter a = -1.0 must be > 0"):
+        jax.grad(loss)(-1.0)
+    assert np.isfinite(float(jax.grad(loss)(7012.0)))
+    assert np.isfinite(float(jax.jit(jax.grad(loss))(7012.0)))
+
+
 # -- property-based tests -------------------------------------------------------------------
 
 QUANTITY_UNITS = {  # quantity → [(unit as written, factor to SI)], value range in SI

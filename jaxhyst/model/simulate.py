@@ -264,7 +264,8 @@ def simulate(
     """Simulate the actuator: drive H(t) → M, Man, Mirr → λ → y, ε.
 
     **Arguments:**
-    - ``params``: `Parameters` (SI units). Checked for physical validity when concrete.
+    - ``params``: `Parameters` (SI units). Checked for physical validity wherever their
+      values can be read (also under ``jax.grad`` & co. called directly; not in jit/vmap).
     - ``actuator``: `Actuator` constants (Ar, lr used here; n, Hb by the drive builders).
     - ``drive``: `Drive` with times t (s) and applied field H (A/m), shape (T,).
     - ``variant``: Jiles–Atherton form; the paper's `EnergyBasedJA` by default.
