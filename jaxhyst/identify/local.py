@@ -353,7 +353,7 @@ def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: fl
     """An `IdentificationResult` at the solver coordinate ``z`` (without report).
     ``evaluated``: (cost, group residuals) at ``z`` when the caller has them already."""
     cost, residuals = evaluated if evaluated is not None else _evaluate_at(
-        problem, jnp.asarray(z))
+        problem, np.asarray(z))
     cost = float(cost)
     outcome = Outcome(outcome)
     if not np.isfinite(cost) and outcome is not Outcome.interrupted:
@@ -364,7 +364,7 @@ def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: fl
         for g, sc in zip(groups.values(), scales, strict=True):
             g["data_scale"] = sc
     space = problem.space
-    values, params = _point(space, jnp.asarray(z))
+    values, params = _point(space, np.asarray(z))  # (jnp.asarray would compile a copy)
     values = np.asarray(values, dtype=float)
     lower, upper = np.asarray(space.lower), np.asarray(space.upper)
     at_bound = {space.names[i]: (side, float(lower[i] if side == "lower" else upper[i]))
