@@ -17,6 +17,7 @@ import os
 import sys
 from pathlib import Path
 
+from jaxhyst._files import writes_in_place
 from jaxhyst.names import DEFAULT_SUBSTEPS, HYBRID_NAMES, SOLVER_NAMES, VARIANT_CLASSES
 
 UNITS_HELP = ("Units: H A/m, I A, y m, M A/m, B T, t s, f Hz; Ms, a, k A/m; E N/m^2, "
@@ -80,6 +81,11 @@ def _check_outputs(args, *, directory: str | None = None) -> None:
         if not value or value is True:
             continue
         flag = f"--{opt}"
+        if opt != directory and writes_in_place(Path(value).expanduser()):
+            # a device, FIFO or /dev/stdout: written in place, so it must be writable
+            if not os.access(Path(value).expanduser(), os.W_OK):
+                raise CLIError(f"{flag} {value}: is not writable; choose a writable file.")
+            continue
         path = Path(value).expanduser().resolve()
         if opt == directory:
             if path.exists() and not path.is_dir():
@@ -503,7 +509,8 @@ def _identify_figure(args, problem, result, has_t: bool) -> None:
              args.png, t=problem.drive.observed(problem.drive.t) if has_t else None,
              title=f"{result.solver}: measured and fitted ({os.path.basename(args.data)})"
              + flags)
-    if "history" in result.extra and result.extra["history"]:
+    # (the history beside the figure; not beside a device or FIFO: /dev/null_history.png)
+    if result.extra.get("history") and not writes_in_place(args.png):
         hist_png = str(Path(args.png).with_name(Path(args.png).stem + "_history.png"))
         plot_history(result.extra["history"], problem.space.names, problem.space.lower,
                      problem.space.upper, hist_png, title=result.solver + flags)

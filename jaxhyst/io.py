@@ -6,8 +6,9 @@ Reading. `read_loops` reads CSV/TSV/semicolon/whitespace-separated text with a h
 loops in one file are told apart by a ``loop`` column. Every problem is reported as a
 `DataError` whose message names the column, row or loop and the fix.
 
-Writing. Every file is written atomically (temporary file in the same directory, fsync,
-rename), so an interrupted write never leaves a half-written file.
+Writing. Every file goes through `jaxhyst._files`: a regular file is written atomically
+(temporary file in the same directory, fsync, rename), so an interrupted write never
+leaves a half-written file; a device, FIFO or ``/dev/stdout`` is written in place.
 """
 
 from __future__ import annotations
@@ -16,12 +17,12 @@ import csv
 import json
 import os
 import re
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ._files import write_text
 from .model.simulate import Simulation
 from .params import NAMES, Bounds, Parameters
 
@@ -232,23 +233,9 @@ def read_loops(path, columns: list[str] | str | None = None) -> list[Loop]:
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file + ``os.replace`` (atomic on POSIX)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file normal permissions
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write ``text`` to ``path``: atomically for a regular file, in place for a device,
+    FIFO or ``/dev/stdout`` (`jaxhyst._files.write_text`)."""
+    write_text(path, text)
 
 
 def write_columns_csv(path, columns: dict) -> None:

@@ -6,8 +6,11 @@ in engineering units (kA/m, μm, ppm) chosen per quantity.
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
 
+from ._files import write_bytes
 from .model.simulate import Simulation
 
 #: How each observed output is displayed: (label, factor from SI, unit shown).
@@ -33,6 +36,17 @@ def _pyplot():
     return plt
 
 
+def _save(fig, path) -> None:
+    """Write ``fig`` as PNG through the package's file writer (atomic for a regular file,
+    in place for a device or FIFO) and close it."""
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, format="png", dpi=120)
+    finally:
+        _pyplot().close(fig)
+    write_bytes(path, buf.getvalue())
+
+
 def _field_axis(H):
     H = np.asarray(H)
     return (H / 1e3, "H (kA/m)") if np.max(np.abs(H)) >= 1e3 else (H, "H (A/m)")
@@ -53,8 +67,7 @@ def plot_simulation(sim: Simulation, path, title: str = "") -> None:
         ax.grid(alpha=0.3)
     if title:
         fig.suptitle(title)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def _join(parts):
@@ -91,8 +104,7 @@ def plot_fit(H, data, model, output: str, path, t=None, title: str = "") -> None
            title=f"error: rms {rms:.3g} {unit}, max {np.nanmax(np.abs(err)):.3g} {unit}")
     for ax in (a1, a2):
         ax.grid(alpha=0.3)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def plot_history(history: list[dict], names, lower, upper, path, title: str = "") -> None:
@@ -122,8 +134,7 @@ def plot_history(history: list[dict], names, lower, upper, path, title: str = ""
         ax.grid(alpha=0.3)
     if title:
         fig.suptitle(title)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def plot_frequency_response(freq, G, path, title: str = "", marks=None) -> None:
@@ -147,8 +158,7 @@ def plot_frequency_response(freq, G, path, title: str = "", marks=None) -> None:
     a2.set(xlabel="frequency (Hz)", ylabel="phase lag (°)")
     for ax in (a1, a2):
         ax.grid(alpha=0.3, which="both")
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def plot_table3_loops(loops: dict, path, title: str = "") -> None:
@@ -169,8 +179,7 @@ def plot_table3_loops(loops: dict, path, title: str = "") -> None:
         ax.legend(fontsize=8)
     if title:
         fig.suptitle(title)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def plot_identifiability(report, path, title: str = "") -> None:
@@ -199,5 +208,4 @@ def plot_identifiability(report, path, title: str = "") -> None:
     fig.colorbar(im, ax=a2, shrink=0.8)
     if title:
         fig.suptitle(title)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)

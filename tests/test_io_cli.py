@@ -46,6 +46,79 @@ def test_atomic_write_leaves_old_file_on_failure_and_normal_permissions(tmp_path
     assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]  # no temp file left
 
 
+def test_writer_keeps_devices_fifos_and_links(tmp_path):
+    """A device, a FIFO or a link through /dev is written in place, never replaced by a
+    regular file; a link to a regular file stays a link (its target is replaced); an
+    existing file keeps its permission bits."""
+    import threading
+
+    from jaxhyst._files import write_bytes, write_text, writes_in_place
+
+    # /dev/null: still the character device afterwards (a rename would replace it)
+    write_text("/dev/null", "nothing\n")
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = {}
+
+    def reader():
+        with open(fifo, "rb") as fh:
+            got["data"] = fh.read()
+
+    thread = threading.Thread(target=reader)
+    thread.start()
+    write_bytes(fifo, b"through the pipe")
+    thread.join(10)
+    assert got["data"] == b"through the pipe"
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+
+    target = tmp_path / "real.txt"
+    target.write_text("old")
+    os.chmod(target, 0o640)
+    link = tmp_path / "link.txt"
+    link.symlink_to(target)
+    write_text(link, "new")
+    assert link.is_symlink() and target.read_text() == "new"
+    assert stat.S_IMODE(os.stat(target).st_mode) == 0o640
+
+    through_dev = tmp_path / "out"
+    through_dev.symlink_to("/dev/null")
+    assert writes_in_place(through_dev) and writes_in_place("/dev/null")
+    write_text(through_dev, "x")
+    assert through_dev.is_symlink() and stat.S_ISCHR(os.stat("/dev/null").st_mode)
+    assert not writes_in_place(target) and not writes_in_place(tmp_path / "new.txt")
+    with pytest.raises(IsADirectoryError):
+        write_text(tmp_path, "x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.txt", "out", "pipe",
+                                                          "real.txt"]
+
+
+def test_cli_writes_to_a_device_in_place(tmp_path, capsys):
+    """``--csv /dev/null`` and ``--png`` into a FIFO: the command succeeds and the device
+    and the FIFO are still what they were."""
+    import threading
+
+    pytest.importorskip("matplotlib")
+    fifo = tmp_path / "figure"
+    os.mkfifo(fifo)
+    got = {}
+
+    def reader():
+        with open(fifo, "rb") as fh:
+            got["data"] = fh.read()
+
+    thread = threading.Thread(target=reader, daemon=True)
+    thread.start()
+    assert main(["simulate", "--csv", "/dev/null", "--png", str(fifo),
+                 "--samples-per-period", "100"]) == 0
+    thread.join(30)
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    assert got["data"][:8] == b"\x89PNG\r\n\x1a\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["figure"]
+
+
 # -- reading measured loops ------------------------------------------------------------------
 
 

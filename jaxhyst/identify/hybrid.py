@@ -59,6 +59,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._files import write_bytes
 from .._interrupt import interruptible
 from ..names import HYBRID_NAMES
 from ..sharding import map_sharded, shardable, vmap_blocked
@@ -375,25 +376,13 @@ def fingerprint(problem: AbstractProblem, method: HybridGA, settings: GASettings
 
 
 def save_checkpoint(path, state: GAState, history: list, meta: dict) -> None:
-    """Write the state, history and meta data atomically (temporary file, fsync, rename)."""
-    path = os.fspath(path)
+    """Write the state, history and meta data (`jaxhyst._files`: atomically for a
+    regular file)."""
     arrays = {f.name: np.asarray(getattr(state, f.name)) for f in dataclasses.fields(state)}
     buf = io.BytesIO()
     np.savez(buf, meta=np.array(json.dumps({**meta, "history": history,
                                             "version": CHECKPOINT_VERSION})), **arrays)
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    tmp = os.path.join(directory, f".{os.path.basename(path)}.tmp{os.getpid()}")
-    try:
-        with open(tmp, "wb") as fh:
-            fh.write(buf.getvalue())
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_bytes(path, buf.getvalue())
 
 
 def load_checkpoint(path, template: GAState) -> tuple[GAState, list, dict]:
