@@ -137,7 +137,7 @@ def fits(args, jh, jnp, np, pj, joint, rms_per_loop, fixed, bounds, variant, loo
 
 def speed(args, jh, jax, jnp, pj, differential_evolution, least_squares):
     # 5. speed: jaxhyst hybrid vs SciPy DE + least_squares, same model, loss, budget
-    settings = jh.GASettings(q1=60, q2=20, T1=5, T2=45, T3=60, local_steps=4)
+    settings = dict(q1=60, q2=20, T1=5, T2=45, T3=60, local_steps=4)
     budget = settings.T1 * settings.q1 + settings.T2 * settings.q2
     methods = ("GATR2", "GALM2")
     for m in methods:

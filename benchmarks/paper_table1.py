@@ -42,7 +42,7 @@ def main():
 
     drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=200)
     problem = jh.synthetic_problem(jh.TABLE1_TRUE, drive, jh.ACTUATOR1, jh.TABLE1_BOUNDS)
-    settings = jh.GASettings(T2=45, T3=100) if args.quick else jh.GASettings()
+    settings = dict(T2=45, T3=100) if args.quick else {}
     seeds = args.seeds[:1] if args.quick else args.seeds
     truth = jh.TABLE1_TRUE.to_dict()
     truth_c = identifiable_combinations(truth)

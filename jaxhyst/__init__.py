@@ -21,20 +21,26 @@ _EXPORTS = {
     **dict.fromkeys(("ACTUATOR1", "ACTUATOR2", "Actuator"), ".actuator"),
     **dict.fromkeys(("Drive", "drive_from_record", "sinusoidal_current", "sinusoidal_field"),
                     ".drive"),
-    **dict.fromkeys(("ClassicJA", "EnergyBasedJA", "JAVariant", "PopJA", "VenkataramanJA",
-                     "Simulation", "frequency_response", "langevin", "langevin_slope",
-                     "magnetostriction", "simulate", "simulate_unchecked"), ".model"),
+    **dict.fromkeys(("AbstractAnhystereticForm", "AbstractJAVariant", "ClassicJA",
+                     "EnergyBasedJA", "PopJA", "VenkataramanJA", "Simulation",
+                     "evaluate_by_differentiation", "frequency_response", "langevin",
+                     "langevin_slope", "magnetostriction", "mirr_of_reversible_fraction",
+                     "simulate", "simulate_unchecked"), ".model"),
     "simulate_batch": ".model.simulate",
     **dict.fromkeys(("NAMES", "TABLE1_BOUNDS", "TABLE1_TRUE", "TABLE3", "UNITS", "Bounds",
                      "Parameters"), ".params"),
     **dict.fromkeys(("multistart", "run_hybrid", "solve"), ".fit"),
-    **dict.fromkeys(("AbstractProblem", "GASettings", "GaussianPrior", "HybridGA",
-                     "IdentificationResult", "JointProblem", "JointSpace", "Outcome",
-                     "ParameterSpace", "Problem", "ResidualGroup", "ResidualProblem",
+    **dict.fromkeys(("AbstractOutput", "AbstractProblem", "GaussianPrior", "HybridGA",
+                     "IdentificationResult", "JointProblem", "JointSpace", "ParameterSpace",
+                     "Problem", "RESULTS", "ResidualGroup", "ResidualProblem",
                      "loop_problem", "synthetic_problem"), ".identify"),
+    **dict.fromkeys(("AbstractProgressMeter", "NoProgressMeter", "TextProgressMeter",
+                     "TqdmProgressMeter"), ".progress"),
+    "Interrupted": "._interrupt",
+    **dict.fromkeys(("Model", "load_model", "save_model"), ".saved"),
 }
 _SUBMODULES = ("actuator", "analysis", "drive", "fit", "identify", "io", "model", "names",
-               "params", "plots", "sharding", "study")
+               "params", "plots", "progress", "saved", "sharding")
 
 __all__ = ["cpu_loop_kernels", "enable_compilation_cache", *_EXPORTS]
 

@@ -7,16 +7,19 @@ Applied on import (``import jaxhyst`` itself does not import JAX):
   imported): the parameters span 1e-3 … 1e10 and identification reaches normalised
   costs of 1e-25, neither of which survives float32.
 - **Time loops compiled as one kernel on the CPU.** XLA:CPU runs a loop body as a
-  sequence of kernels, ~0.1 µs each, unless the loop is "small", which it then compiles
-  into a single function (its `SmallWhileLoopHoistingPass`). The default size limit
-  (1 KiB of memory traffic per iteration) leaves out the Jiles–Atherton time loop, which
-  then runs ~5× slower. jaxhyst raises the limit to 4 MiB (a single trajectory's loop
-  and a population of ~100 fit under it) by adding
+  sequence of kernels, each with its own dispatch cost, unless the loop is "small",
+  which it then compiles into a single function (its `SmallWhileLoopHoistingPass`). The
+  default size limit (1 KiB of memory traffic per iteration) leaves out the
+  Jiles–Atherton time loop, which then runs several times slower. jaxhyst raises the
+  limit to 4 MiB (a single trajectory's loop and a population of ~100 fit under it) by
+  adding
   ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=4194304`` to
   ``XLA_FLAGS``. This can only take effect before JAX creates its CPU backend (the first
   computation of the process), affects only CPU loops whose iterations touch less than
   4 MiB, and is skipped when ``XLA_FLAGS`` already sets ``xla_backend_extra_options`` or
-  ``JAXHYST_XLA_FLAGS=off``. `cpu_loop_kernels` says whether it is in effect.
+  ``JAXHYST_XLA_FLAGS=off``. `cpu_loop_kernels` says whether it is in effect; where it
+  cannot be applied (JAX already computing, or XLA_FLAGS setting other backend options)
+  a `PerformanceWarning` says so once, at import.
 
 Offered, not imposed: JAX's persistent compilation cache (`enable_compilation_cache`),
 which the ``jaxhyst`` command turns on.
@@ -47,34 +50,45 @@ def _enable_x64() -> None:
 
 
 def _backends_initialized() -> bool:
-    """Whether JAX has created its backends already (then XLA_FLAGS is read)."""
+    """Whether JAX has created its backends already (then XLA_FLAGS is not read again)."""
     if "jax" not in sys.modules:
         return False
-    try:  # internal, tested with jax 0.10; assume "no" if it moves
-        from jax._src import xla_bridge
+    from ._jax_compat import backends_are_initialized
 
-        return bool(xla_bridge.backends_are_initialized())
-    except (ImportError, AttributeError):
-        return False
+    return backends_are_initialized()
+
+
+class PerformanceWarning(RuntimeWarning):
+    """jaxhyst's CPU loop setting could not be applied: simulations run several times
+    slower on the CPU (see `jaxhyst._config`)."""
 
 
 def _apply_loop_flag() -> None:
+    """Add jaxhyst's loop option to XLA_FLAGS if JAX has not started; warn once (a
+    `PerformanceWarning`) where it cannot take effect and the user did not turn it off."""
     global _loop_flag_state
     if os.environ.get("JAXHYST_XLA_FLAGS", "").strip().lower() in ("off", "0", "false", "no"):
         _loop_flag_state = "disabled by JAXHYST_XLA_FLAGS"
         return
     flags = os.environ.get("XLA_FLAGS", "")
+    fix = (f"set XLA_FLAGS=--xla_backend_extra_options={_LOOP_OPTION} before starting "
+           "Python (JAXHYST_XLA_FLAGS=off silences this)")
     if "xla_backend_extra_options" in flags:
-        _loop_flag_state = ("in effect (set by the user)" if _LOOP_OPTION.split("=")[0] in flags
-                            else "not applied: XLA_FLAGS sets xla_backend_extra_options")
+        if _LOOP_OPTION.split("=")[0] in flags:
+            _loop_flag_state = "in effect (set by the user)"
+            return
+        _loop_flag_state = "not applied: XLA_FLAGS sets xla_backend_extra_options"
+        warnings.warn("jaxhyst's CPU loop setting was not applied because XLA_FLAGS already "
+                      "sets xla_backend_extra_options, so simulations run several times "
+                      f"slower on the CPU; add {_LOOP_OPTION} to those options, or {fix}.",
+                      PerformanceWarning, stacklevel=3)
         return
     if _backends_initialized():
         _loop_flag_state = "not applied: JAX was already running when jaxhyst was imported"
-        warnings.warn(
-            "jaxhyst was imported after JAX started computing, so its CPU loop setting "
-            "could not be applied and simulations run ~5x slower on the CPU; import "
-            "jaxhyst first, or set XLA_FLAGS=--xla_backend_extra_options="
-            f"{_LOOP_OPTION} before starting Python.", stacklevel=3)
+        warnings.warn("jaxhyst was imported after JAX started computing, so its CPU loop "
+                      "setting could not be applied and simulations run several times "
+                      f"slower on the CPU; import jaxhyst before the first JAX computation, "
+                      f"or {fix}.", PerformanceWarning, stacklevel=3)
         return
     os.environ["XLA_FLAGS"] = (flags + " --xla_backend_extra_options=" + _LOOP_OPTION).strip()
     _loop_flag_state = "in effect"
@@ -120,7 +134,7 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None) -> Path
     except OSError:  # read-only home etc.: run without a cache rather than fail
         return None
     jax.config.update("jax_compilation_cache_dir", str(target))
-    # Cache even small/fast compilations: our scans compile in ~1-10 s each.
+    # Cache even small compilations: a time loop takes seconds to compile.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return target

@@ -46,7 +46,7 @@ def writes_in_place(path: str | os.PathLike) -> bool:
     path = os.fspath(path)
     try:
         mode = os.stat(path).st_mode  # (follows links)
-    except FileNotFoundError:
+    except OSError:  # nothing there (or a parent is not a directory): a new regular file
         return False
     if stat.S_ISDIR(mode):
         return False

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._typing import Array, Float
 from .params import is_concrete
 
 
@@ -40,10 +40,10 @@ class Actuator(eqx.Module):
     Concrete values are checked on construction.
     """
 
-    Ar: jax.Array
-    lr: jax.Array
-    n: jax.Array | None
-    Hb: jax.Array
+    Ar: Float[Array, ""]
+    lr: Float[Array, ""]
+    n: Float[Array, ""] | None
+    Hb: Float[Array, ""]
     name: str = eqx.field(static=True)
 
     def __init__(self, Ar, lr, n=None, Hb=0.0, name: str = "actuator"):

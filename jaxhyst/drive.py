@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._typing import Array, ArrayLike, Float, Signal
 from .actuator import Actuator
 from .params import is_concrete
 
@@ -48,8 +49,8 @@ class Drive(eqx.Module):
     step.
     """
 
-    t: jax.Array
-    H: jax.Array
+    t: Signal
+    H: Signal
     run_in: int = eqx.field(static=True, default=0)
     uniform: bool = eqx.field(static=True, default=False)
 
@@ -127,7 +128,7 @@ class Drive(eqx.Module):
         """Mean time step (t[-1] − t[0])/(T − 1), s."""
         return (self.t[..., -1] - self.t[..., 0]) / (self.n_samples - 1)
 
-    def observed(self, signal: jax.Array) -> jax.Array:
+    def observed(self, signal: Float[Array, "*batch T"]) -> Float[Array, "*batch T_obs"]:
         """The observed part (after the run-in) of a per-sample signal, along axis -1."""
         return signal[..., self.run_in :]
 
@@ -163,7 +164,8 @@ def _field_from_current(n, Hb, current):
     return _as_float(n) * _as_float(current) + _as_float(Hb)
 
 
-def drive_from_record(t, H, *, run_in_periods: int = 1, ramp_fraction: float = 0.25) -> Drive:
+def drive_from_record(t: Float[ArrayLike, " T"] | None, H: Float[ArrayLike, " T"], *,
+                      run_in_periods: int = 1, ramp_fraction: float = 0.25) -> Drive:
     """A `Drive` whose observed part is a measured record H(t) (A/m; t in s, or ``None``
     for a rate-independent B–H loop given as field samples only).
 

@@ -13,7 +13,7 @@ from .analysis.identifiability import identifiability
 
 def attach_report(result, problem, report: bool = True):
     """``result`` with its identifiability report (or the reason it is missing)."""
-    if not report or result.outcome is identify.Outcome.nonfinite:
+    if not report or result.result == "nonfinite":
         return result
     try:
         return result.with_report(identifiability(problem, result.params))

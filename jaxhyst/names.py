@@ -15,3 +15,7 @@ VARIANT_CLASSES = {"energy": "EnergyBasedJA", "classic": "ClassicJA",
 #: RK4 substeps per sample everywhere (simulate, problems, the command line): the setting
 #: whose accuracy docs/theory.md documents.
 DEFAULT_SUBSTEPS = 2
+
+#: Output kinds that see the magnetization only (`jaxhyst.identify.outputs`: their
+#: ``magnetic_only``), for the command line, which decides before JAX is imported.
+MAGNETIC_OUTPUT_NAMES = ("magnetization", "flux_density")

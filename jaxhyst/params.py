@@ -27,10 +27,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-try:  # (jax.extend's; tested with jax 0.10.2)
-    from jax.extend.core import concrete_or_error as _concrete_or_error
-except ImportError:  # pragma: no cover - then values under transformations are not read
-    _concrete_or_error = None
+from ._jax_compat import concrete_value
+from ._typing import Array, ArrayLike, Float, Real
 
 NAMES: tuple[str, ...] = ("Ms", "lambda_s", "a", "k", "alpha", "c", "E", "Kz", "Mz", "Cz")
 #: Parameters only the magnetostriction and the structure see: they cannot affect M or B.
@@ -58,16 +56,16 @@ class Parameters(eqx.Module):
     Leaves may be scalars (one parameter set) or arrays with a leading batch axis.
     """
 
-    Ms: jax.Array
-    lambda_s: jax.Array
-    a: jax.Array
-    k: jax.Array
-    alpha: jax.Array
-    c: jax.Array
-    E: jax.Array
-    Kz: jax.Array
-    Mz: jax.Array
-    Cz: jax.Array
+    Ms: Real
+    lambda_s: Real
+    a: Real
+    k: Real
+    alpha: Real
+    c: Real
+    E: Real
+    Kz: Real
+    Mz: Real
+    Cz: Real
 
     names: ClassVar[tuple[str, ...]] = NAMES
 
@@ -84,12 +82,12 @@ class Parameters(eqx.Module):
         self.Cz = jnp.asarray(Cz, dtype=jnp.float64)
 
     # -- conversions --------------------------------------------------------------
-    def to_array(self) -> jax.Array:
+    def to_array(self) -> Float[Array, "*batch 10"]:
         """Stack the fields along a new last axis, in the order of `NAMES`: shape (..., 10)."""
         return jnp.stack([getattr(self, n) for n in NAMES], axis=-1)
 
     @classmethod
-    def from_array(cls, x) -> Parameters:
+    def from_array(cls, x: Float[ArrayLike, "*batch 10"]) -> Parameters:
         """Inverse of `to_array`: ``x`` has shape (..., 10) in the order of `NAMES`."""
         # host values are split on the host (indexing a device array eagerly compiles
         # a small program per kind of index at the first call)
@@ -186,12 +184,8 @@ def readable_value(x) -> np.ndarray | None:
     inside jit or vmap, where it is abstract."""
     if not isinstance(x, jax.core.Tracer):
         return np.asarray(x)
-    if _concrete_or_error is None:  # pragma: no cover - older or newer JAX
-        return None
-    try:
-        return np.asarray(_concrete_or_error(None, x))
-    except jax.errors.ConcretizationTypeError:
-        return None
+    value = concrete_value(x)
+    return None if value is None else np.asarray(value)
 
 
 def check_parameters(p: Parameters) -> None:

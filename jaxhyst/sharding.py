@@ -8,16 +8,14 @@ Each member's computation is independent, so the result is the same as unsharded
 tests check it). On one device nothing changes. For a batch that runs the time loop (a
 population), placing it is the slow way: the loop's batch-wide tests (does any member
 need the located switch at this interval?) then become cross-device reductions at every
-interval — on two CPU host devices 689 against 230 ns per individual·sample on one
-device at P = 120, 271 against 198 ns with `map_sharded` at P = 1000.
+interval, several times slower on two CPU host devices than one (benchmarks/RESULTS.md).
 `map_sharded` gives each device its own block and its own tests (the GA evaluates its
 populations so).
 
 `vmap_blocked` is ``jax.vmap`` for a large population on the CPU: vectorized over
 hundreds of members, a simulation's intermediates (M and its slopes, the forcing, per
-member and substep) no longer fit in the caches; run block by block they do (P = 1000 on
-2 cores: 325 → 236 ns per individual·sample on one device, 204 → 136 on two host
-devices; `benchmarks/RESULTS.md`). A plain ``jax.vmap`` of `simulate_unchecked` gets
+member and substep) no longer fit in the caches; run block by block they do (measured in
+`benchmarks/RESULTS.md`). A plain ``jax.vmap`` of `simulate_unchecked` gets
 part of this by itself: the simulation's work after its time loop runs in blocks under
 any large vmap (`jaxhyst.model.simulate`).
 

@@ -81,8 +81,8 @@ def sharding_inner(d):
 
     out = {"devices": jax.device_count()}
     problem = table1_problem(spp=50)
-    small = jh.GASettings(q1=24, q2=10, T1=2, T2=6, T3=20, local_steps=4)
-    runs = {s: jh.run_hybrid(problem, "GATR1", seed=2, settings=small, shard=s,
+    small = dict(q1=24, q2=10, T1=2, T2=6, T3=20, local_steps=4)
+    runs = {s: jh.run_hybrid(problem, "GATR1", seed=2, settings={**small, "shard": s},
                              report=False) for s in (True, False)}
     a, b = runs[True], runs[False]
     out["ga_cost"] = [a.cost, b.cost]

@@ -7,7 +7,10 @@ import tempfile
 # Tests import the shared problems in tests/helpers.py.
 sys.path.insert(0, os.path.dirname(__file__))
 
+import pytest  # noqa: E402
+
 import jaxhyst  # noqa: E402  (float64 on import)
+from jaxhyst._interrupt import clear_stop  # noqa: E402
 
 # as the command line does: the CLI chains (subprocesses) and the in-process tests share
 # compiled programs, and a second run of the suite loads them from disk
@@ -35,12 +38,27 @@ def pytest_collection_finish(session):
         os.makedirs(d)
         # niced (the `nice` command: a preexec_fn would fork the multithreaded JAX
         # process): the in-process tests keep their core, the chains use what is left
+        # (a session of its own: an aborted run ends the chain with the commands it ran)
         CLI_CHAINS[chain] = (d, subprocess.Popen([*nice, sys.executable, script, chain, d],
                                                  stdout=subprocess.DEVNULL,
-                                                 stderr=subprocess.DEVNULL))
+                                                 stderr=subprocess.DEVNULL,
+                                                 start_new_session=True))
 
 
 def pytest_sessionfinish(session, exitstatus):
+    import signal
+
     for _, proc in CLI_CHAINS.values():
         if proc.poll() is None:
-            proc.kill()
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
+@pytest.fixture(autouse=True)
+def _no_stop_request_left():
+    """A test that requests a stop (as the command line's Ctrl-C does) leaves none for
+    the next."""
+    yield
+    clear_stop()

@@ -95,7 +95,7 @@ def test_sharded_population_matches_unsharded():
 def _covered(study):
     """Every identifiable, determined combination of every run: (label, truth, value,
     half-width of the 95 % interval)."""
-    from jaxhyst.study import undetermined
+    from jaxhyst.cli.studies import undetermined
 
     out = []
     for r in study["runs"]:
@@ -155,7 +155,7 @@ def test_measured_loop_default_command_bounds_stops_and_start():
     log = _log(d, "default.log")
     assert status["default"] == 0, log
     assert "bounds derived from the data: Ms [" in log
-    assert "compiling the solver" in log and "best cost" in log  # progress
+    assert "compiling the first step" in log and "best cost" in log  # progress
     assert "lambda_s" not in log and "(fixed)" not in log  # only what affects B is printed
     with open(os.path.join(d, "first.json")) as fh:
         first = json.load(fh)

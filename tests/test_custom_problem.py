@@ -80,7 +80,7 @@ def test_the_problem_reports_its_groups_and_its_own_cost(problem, lm_fit):
 def test_bfgs_object_lm_and_gatr1_reach_the_same_optimum(problem, lm_fit):
     bfgs = jh.solve(problem, np.full(3, 0.5), solver=optx.BFGS(rtol=1e-12, atol=1e-12),
                     max_steps=400, report=False)
-    settings = jh.GASettings(q1=24, q2=10, T1=2, T2=6, local_steps=4, check_steps=40)
+    settings = dict(q1=24, q2=10, T1=2, T2=6, local_steps=4, check_steps=40)
     gatr1 = jh.run_hybrid(problem, "GATR1", seed=1, settings=settings, report=False)
     for other in (bfgs, gatr1):
         assert other.success, other.result
@@ -144,7 +144,7 @@ def test_a_start_of_the_wrong_kind_is_refused_with_what_to_give(problem):
         jh.solve(problem, {"a": 6000.0, "k": 3000.0}, solver="lm", report=False)
     import types
 
-    from jaxhyst.identify.local import start_z
+    from jaxhyst.identify import start_z
 
     flat = types.SimpleNamespace(space=jh.ParameterSpace.for_tree(np.zeros(2), np.ones(2)))
     with pytest.raises(TypeError, match=r"start must be box coordinates u in \[0, 1\]"):

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,7 +9,8 @@ import pytest
 from helpers import table1_problem
 
 import jaxhyst as jh
-from jaxhyst.identify import ga
+from jaxhyst._interrupt import clear_stop
+from jaxhyst.identify import ga, hybrid
 
 KEY = jax.random.PRNGKey(42)
 
@@ -94,8 +93,8 @@ def test_roulette_frequency_is_proportional_to_fitness():
     assert freq[4] == 0.0
 
 
-SMALL = jh.GASettings(q1=24, q2=10, T1=2, T2=8, T3=20, local_steps=4, check_steps=30)
-TINY = jh.GASettings(q1=8, q2=4, T1=1, T2=2, T3=3, local_steps=2, check_steps=5)
+SMALL = dict(q1=24, q2=10, T1=2, T2=8, T3=20, local_steps=4, check_steps=30)
+TINY = dict(q1=8, q2=4, T1=1, T2=2, T3=3, local_steps=2, check_steps=5)
 
 
 @pytest.fixture(scope="module")
@@ -112,10 +111,10 @@ def test_short_gatr1_improves_by_orders_of_magnitude(gatr1_run):
     history = gatr1_run.extra["history"]
     initial = history[0]["best_cost"]  # best of the initial (random) population
     assert gatr1_run.cost < 1e-4 * initial, (initial, gatr1_run.cost)
-    assert len(history) == SMALL.T1 + SMALL.T2
+    assert len(history) == SMALL["T1"] + SMALL["T2"]
     assert [h["phase"] for h in history[:3]] == ["BCGA", "BCGA", "FCGA"]
-    assert history[-1]["evaluations"] == SMALL.T1 * SMALL.q1 + SMALL.T2 * SMALL.q2
-    assert all(h["local"] is not None for h in history[SMALL.T1:])
+    assert history[-1]["evaluations"] == SMALL["T1"] * SMALL["q1"] + SMALL["T2"] * SMALL["q2"]
+    assert all(h["local"] is not None for h in history[SMALL["T1"]:])
     best = [h["best_cost"] for h in history]
     assert all(b2 <= b1 for b1, b2 in zip(best, best[1:], strict=False))  # elitism
     assert jh.TABLE1_BOUNDS.contains(gatr1_run.params)
@@ -128,9 +127,9 @@ def test_short_gatr1_improves_by_orders_of_magnitude(gatr1_run):
 def test_every_hybrid_runs_and_ends_with_a_convergence_check(problem, method):
     res = jh.run_hybrid(problem, method, seed=0, settings=TINY, report=False)
     history = res.extra["history"]
-    assert len(history) == TINY.T1 + TINY.T2 and np.isfinite(res.cost)
+    assert len(history) == TINY["T1"] + TINY["T2"] and np.isfinite(res.cost)
     check = res.extra["convergence_check"]
-    assert check["steps"] <= TINY.check_steps and res.result == check["result"]
+    assert check["steps"] <= TINY["check_steps"] and res.result == check["result"]
     assert res.cost <= history[-1]["best_cost"] * (1 + 1e-12)
     assert (res.extra["after"] is not None) == (method in ("GATR2", "GALM2"))
     # 5 LM steps from a tiny GA's best cannot converge: the run says it stopped short
@@ -154,6 +153,7 @@ def test_same_seed_same_result_and_different_seeds_differ(problem, gatr1_run):
     assert not np.array_equal(other.params.to_array(), same_seed_plain.params.to_array())
 
 
+@pytest.mark.compat
 def test_checkpoint_resume_gives_the_uninterrupted_result(problem, gatr1_run, tmp_path):
     path = tmp_path / "run.npz"
     part = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
@@ -163,7 +163,7 @@ def test_checkpoint_resume_gives_the_uninterrupted_result(problem, gatr1_run, tm
     resumed = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
                             resume=True, report=False)
     np.testing.assert_array_equal(resumed.params.to_array(), gatr1_run.params.to_array())
-    assert len(resumed.extra["history"]) == SMALL.T1 + SMALL.T2
+    assert len(resumed.extra["history"]) == SMALL["T1"] + SMALL["T2"]
     with pytest.raises(ValueError, match="belongs to another run"):
         jh.run_hybrid(problem, "GATR1", seed=99, settings=SMALL, checkpoint=path, resume=True)
 
@@ -187,7 +187,7 @@ def test_a_checkpoint_of_another_shape_is_refused(problem, tmp_path):
     path = tmp_path / "other.npz"
     jh.run_hybrid(problem, "GA", seed=0, settings=TINY, checkpoint=path, stop_after=1,
                   report=False)
-    other = dataclasses.replace(TINY, q1=12)
+    other = {**TINY, "q1": 12}
     with pytest.raises(jh.identify.CheckpointError, match="does not match this run"):
         jh.run_hybrid(problem, "GA", seed=0, settings=other, checkpoint=path, resume=True)
 
@@ -195,58 +195,58 @@ def test_a_checkpoint_of_another_shape_is_refused(problem, tmp_path):
 def test_after_placement_runs_t3_local_steps(problem):
     res = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False)
     after = res.extra["after"]
-    assert after is not None and 1 <= after["steps"] <= SMALL.T3
+    assert after is not None and 1 <= after["steps"] <= SMALL["T3"]
     assert res.cost <= after["cost_before"]
 
 
 def test_an_interruption_in_the_after_solve_returns_the_point_reached(problem, monkeypatch,
                                                                      tmp_path):
-    from jaxhyst._interrupt import _flag, interruptible
+    from jaxhyst._interrupt import request_stop
     from jaxhyst.identify import hybrid
 
-    real = hybrid.stepped_solve
+    real = hybrid._final_solve
 
     def interrupted(*args, **kwargs):
-        _flag["stop"] = True  # as a Ctrl-C when the final local solve starts
+        request_stop()  # as a Ctrl-C of the command line when the final local solve starts
         return real(*args, **kwargs)
 
     path = tmp_path / "after.npz"
-    monkeypatch.setattr(hybrid, "stepped_solve", interrupted)
-    with interruptible():
-        res = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False,
-                            checkpoint=path, checkpoint_every=100)
-    monkeypatch.setattr(hybrid, "stepped_solve", real)
+    monkeypatch.setattr(hybrid, "_final_solve", interrupted)
+    res = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False,
+                        checkpoint=path, checkpoint_every=100)
+    monkeypatch.setattr(hybrid, "_final_solve", real)
+    clear_stop()
     after = res.extra["after"]
     assert res.result == "interrupted" and after["result"] == "interrupted"
     assert after["steps"] == 1 and res.extra["convergence_check"] is None
     assert np.isfinite(res.cost) and res.cost <= after["cost_before"]
-    assert len(res.extra["history"]) == SMALL.T1 + SMALL.T2  # the GA itself ran to its end
+    assert len(res.extra["history"]) == SMALL["T1"] + SMALL["T2"]  # the GA itself ran to its end
     # the completed GA was saved: a resume runs only the final solves, and ends as an
     # uninterrupted run does
     resumed = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False,
                             checkpoint=path, resume=True)
     whole = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False)
-    assert resumed.extra["history"][-1]["generation"] == SMALL.T1 + SMALL.T2
+    assert resumed.extra["history"][-1]["generation"] == SMALL["T1"] + SMALL["T2"]
     np.testing.assert_array_equal(resumed.params.to_array(), whole.params.to_array())
 
 
 def test_an_interruption_before_the_convergence_check_saves_and_says_so(problem, monkeypatch,
                                                                        tmp_path, capsys):
-    from jaxhyst._interrupt import _flag, interruptible
+    from jaxhyst._interrupt import request_stop
     from jaxhyst.identify import hybrid
 
-    real = hybrid.stepped_solve
+    real = hybrid._final_solve
 
     def then_interrupted(*args, **kwargs):
         out = real(*args, **kwargs)
-        _flag["stop"] = True  # as a Ctrl-C right after the final local solve ended
+        request_stop()  # as a Ctrl-C right after the final local solve ended
         return out
 
     path = tmp_path / "check.npz"
-    monkeypatch.setattr(hybrid, "stepped_solve", then_interrupted)
-    with interruptible():
-        res = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False,
-                            checkpoint=path, checkpoint_every=100, progress=100)
+    monkeypatch.setattr(hybrid, "_final_solve", then_interrupted)
+    res = jh.run_hybrid(problem, "GALM2", seed=1, settings=SMALL, report=False,
+                        checkpoint=path, checkpoint_every=100, progress=100)
+    clear_stop()
     assert res.result == "interrupted" and res.extra["convergence_check"] is None
     assert res.extra["after"]["result"] != "interrupted"
     assert path.exists()
@@ -254,37 +254,67 @@ def test_an_interruption_before_the_convergence_check_saves_and_says_so(problem,
     assert "interrupted before the convergence check" in err and "done:" not in err
 
 
-class _FlakyProblem(jh.Problem):
-    """A problem whose simulation 'diverges' (NaN cost) wherever u[0] > 0.5. The model
-    itself stays finite throughout the Table 1 box (test_model), so failures are injected."""
+class _FlakyProblem(jh.AbstractProblem):
+    """A problem whose simulation 'diverges' (NaN residuals) wherever u[0] > 0.5. The
+    model itself stays finite throughout the Table 1 box (test_model), so failures are
+    injected around a real problem."""
 
-    def cost_u(self, u):
-        return jnp.where(u[0] > 0.5, jnp.nan, super().cost_u(u))
+    inner: jh.Problem
+
+    @property
+    def output(self):
+        return self.inner.output
+
+    @property
+    def space(self):
+        return self.inner.space
+
+    @property
+    def priors(self):
+        return self.inner.priors
+
+    @property
+    def groups(self):
+        return self.inner.groups
+
+    def group_residuals(self, params):
+        bad = self.space.u_from_params(params)[0] > 0.5
+        return tuple(jnp.where(bad, jnp.nan, r) for r in self.inner.group_residuals(params))
+
+    @property
+    def observations(self):
+        return self.inner.observations
+
+    def with_data(self, data):
+        return _FlakyProblem(self.inner.with_data(data))
 
 
 def test_failed_individuals_get_zero_fitness_and_are_counted(problem):
-    flaky = _FlakyProblem(problem.data, problem.drive, problem.actuator, problem.space)
+    flaky = _FlakyProblem(problem)
     U = jax.random.uniform(KEY, (64, 10))
-    costs = np.asarray(jh.identify.hybrid._evaluate(flaky, U))
+    costs = np.asarray(hybrid._evaluate(flaky, U))
     assert np.any(~np.isfinite(costs)) and np.any(np.isfinite(costs))
     fit = np.asarray(flaky.fitness_from_cost(jnp.asarray(costs)))
     assert np.all(fit[~np.isfinite(costs)] == 0) and np.all(fit[np.isfinite(costs)] > 0)
     res = jh.run_hybrid(flaky, "GA", seed=0, report=False,
-                        settings=jh.GASettings(q1=64, q2=10, T1=1, T2=2, check_steps=0))
+                        settings=dict(q1=64, q2=10, T1=1, T2=2, check_steps=0))
     history = res.extra["history"]
     assert history[0]["failures"] > 0 and res.extra["failures"] >= history[0]["failures"]
     assert np.isfinite(res.cost) and float(flaky.space.u_from_params(res.params)[0]) <= 0.5
     assert res.result == "max_steps_reached"  # no convergence check: never "successful"
 
 
-def test_ctrl_c_stops_after_the_generation_keeps_best_and_resumes_exactly(
+def test_ctrl_c_stops_at_the_generation_keeps_best_and_resumes_exactly(
         problem, gatr1_run, tmp_path, monkeypatch):
+    """Ctrl-C in Python (no handler installed by jaxhyst) ends the run at the last
+    complete generation: `jaxhyst.Interrupted` carries the best point so far, the
+    checkpoint is written, and a resume gives the uninterrupted result."""
     import os
     import signal
 
     from jaxhyst.identify import hybrid
 
-    real = hybrid.fcga_generation
+    real = hybrid._fcga_generation
     calls = {"n": 0}
 
     def interrupting(*args):
@@ -294,12 +324,15 @@ def test_ctrl_c_stops_after_the_generation_keeps_best_and_resumes_exactly(
         return real(*args)
 
     path = tmp_path / "ctrl_c.npz"
-    monkeypatch.setattr(hybrid, "fcga_generation", interrupting)
-    part = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
-                         checkpoint_every=100, report=False)
-    monkeypatch.setattr(hybrid, "fcga_generation", real)
+    monkeypatch.setattr(hybrid, "_fcga_generation", interrupting)
+    with pytest.raises(jh.Interrupted) as caught:
+        jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
+                      checkpoint_every=100, report=False)
+    monkeypatch.setattr(hybrid, "_fcga_generation", real)
+    part = caught.value.result
+    assert isinstance(caught.value, KeyboardInterrupt)
     assert part.result == "interrupted" and np.isfinite(part.cost)
-    assert len(part.extra["history"]) == 6  # the generation under way was completed
+    assert len(part.extra["history"]) == 5  # the generation under way is not kept
     resumed = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
                             resume=True, report=False)
     np.testing.assert_array_equal(resumed.params.to_array(), gatr1_run.params.to_array())
@@ -310,10 +343,10 @@ def test_new_generation_counts_step_limits_and_probabilities_compile_nothing(
         problem, caplog):
     import logging
 
-    first = dataclasses.replace(TINY, T1=2)  # two BCGA generations: the second reuses too
+    first = {**TINY, "T1": 2}  # two BCGA generations: the second reuses too
     jh.run_hybrid(problem, "GATR1", seed=0, settings=first, report=False)
-    other = dataclasses.replace(first, T1=3, T2=4, pc=0.5, pm=0.3, beta=2.0, c1=1e-20,
-                                check_steps=7)
+    other = {**first, "T1": 3, "T2": 4, "pc": 0.5, "pm": 0.3, "beta": 2.0, "c1": 1e-20,
+             "check_steps": 7}
     with jax.log_compiles(), caplog.at_level(logging.WARNING):
         res = jh.run_hybrid(problem, "GATR1", seed=0, settings=other, report=False)
     compiled = [r.getMessage()[:80] for r in caplog.records
@@ -323,6 +356,6 @@ def test_new_generation_counts_step_limits_and_probabilities_compile_nothing(
     assert [h["phase"] for h in history] == ["BCGA"] * 3 + ["FCGA"] * 4
     # the traced probabilities take effect: the same seed and generation counts with the
     # default pc and pm breed another second generation
-    same_counts = dataclasses.replace(first, T1=3, T2=4)
+    same_counts = {**first, "T1": 3, "T2": 4}
     base = jh.run_hybrid(problem, "GATR1", seed=0, settings=same_counts, report=False)
     assert base.extra["history"][1]["mean_fitness"] != history[1]["mean_fitness"]

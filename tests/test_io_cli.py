@@ -263,10 +263,14 @@ def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
     out = tmp_path / "r.json"
     argv = ["identify", str(f), "--variant", "classic", "--method", "lm", "--starts", "1",
             "--max-steps", "2", "--fix", f"Ms={jh.TABLE1_TRUE.Ms}", "--out", str(out),
-            "--json", "--progress", "0"]
+            "--json", "--progress", "0", "--save-model", str(tmp_path / "m.eqx")]
     assert main(argv) == 3
     res = json.loads(out.read_text())
     assert res["outcome"] == "max_steps_reached" and res["success"] is False
+    # the model as written: its parameters are the result's, its form the one fitted
+    model = jh.load_model(tmp_path / "m.eqx")
+    assert isinstance(model.variant, jh.ClassicJA)
+    assert float(model.params.k) == res["params"]["k"]["value"]
     assert json.loads(capsys.readouterr().out)["outcome"] == "max_steps_reached"
     helps = build_parser()._subparsers._group_actions[0].choices["identify"].format_help()
     assert "3 the fit stopped" in " ".join(helps.split())

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import jaxhyst as jh
+from jaxhyst.identify import SamplingWarning
 from jaxhyst.identify.joint import NO_ACTUATOR
 from jaxhyst.identify.measured import (
     default_loop_bounds,
@@ -19,7 +20,6 @@ from jaxhyst.identify.measured import (
     monotone_branches,
     turning_points,
 )
-from jaxhyst.identify.problem import SamplingWarning
 from jaxhyst.identify.result import IdentificationResult
 
 MU0 = 4e-7 * np.pi

@@ -101,6 +101,7 @@ def _observed_y(x, act, drive):
     return drive.observed(simulate_unchecked(jh.Parameters.from_array(x), act, drive).y)
 
 
+@pytest.mark.compat
 @pytest.mark.parametrize("case", [CASES[0], CASES[2]], ids=["table1", "act2_1000Hz"])
 def test_jacfwd_and_grad_match_central_differences(case):
     _, p, act, drive = case
@@ -131,6 +132,7 @@ def test_jacfwd_and_grad_match_central_differences(case):
     assert np.allclose(g, g_fwd, rtol=1e-9, atol=0)
 
 
+@pytest.mark.compat
 def test_vmap_equals_loop_and_jit():
     _, p, act, drive = CASES[0]
     key = jax.random.PRNGKey(1)

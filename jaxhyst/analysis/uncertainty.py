@@ -16,7 +16,6 @@
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass
 
@@ -25,12 +24,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._interrupt import interruptible
-from ..identify.local import CODES, run_local, start_z
+from .._driver import DONE, KEYBOARD, drive
+from .._interrupt import Interrupted
+from ..identify import outcome_name, solve_traced, start_z
 from ..identify.solvers import make_solver
 from ..identify.space import u_from_z
+from ..progress import progress_meter
 from ..sharding import batch_sharding, place
-from .identifiability import Z95, whitened_log_jacobian
+from .identifiability import whitened_log_jacobian
+from .report import Z95
 
 CHI2_95 = 3.841458820694124  # 95 % quantile of χ² with one degree of freedom
 
@@ -103,7 +105,7 @@ def _crossing(grid, d, i0, direction):
 
 def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
                        solver: str = "lm", max_steps: int = 100,
-                       batch_size: int | None = None) -> ProfileLikelihood:
+                       batch_size: int | None = None, progress=False) -> ProfileLikelihood:
     """Profile likelihood of parameter ``name`` of ``problem`` around the fit ``params``.
 
     **Arguments:**
@@ -114,6 +116,7 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
       from ``params`` and run as one vmapped batch (or batches of ``batch_size``; the
       same batch size, solver and ``max_steps`` as an earlier profile or `fit_replicates`
       of the same problem reuse its compiled program, whichever parameter is profiled).
+    - ``progress``: a progress meter (`jaxhyst.progress`) or True; silent by default.
     """
     space = problem.space
     if name not in space.names:
@@ -142,8 +145,11 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
     lowers[:, i_free] = uppers[:, i_free] = grid  # hold the parameter at each grid value
     data = jax.tree.map(lambda a: np.broadcast_to(np.asarray(a), (G, *np.shape(a))),
                         problem.observations)
-    x, _, codes, _, costs = _fit_many(problem, data, lowers, uppers, params, solver,
-                                      max_steps, batch_size or G)
+    (x, _, results, _, costs), how = _fit_many(problem, data, lowers, uppers, params,
+                                               solver, max_steps, batch_size or G,
+                                               progress_meter(progress))
+    if how != DONE:  # a profile needs every point of its grid
+        raise KeyboardInterrupt
     theta = np.asarray(space.flat_from_free(jnp.asarray(x)))
     best = float(_cost_at(problem, space.z_from_params(params)))
     c_min = min(best, float(np.nanmin(costs)))
@@ -160,7 +166,7 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
     roundoff = sigma2 != 1.0 and c_min <= 1e-20
     return ProfileLikelihood(name=name, value=value, grid=grid, cost=costs, delta_chi2=d,
                              theta=theta, interval=interval,
-                             results=[CODES[int(c)].value for c in np.asarray(codes)],
+                             results=[str(n) for n in np.atleast_1d(outcome_name(results))],
                              roundoff=bool(roundoff))
 
 
@@ -188,44 +194,54 @@ def _fit_batch(problem, solver, datas, lowers, uppers, z0, max_steps):
     def one(d, lo, hi):
         p = eqx.tree_at(lambda q: q.space, problem.with_data(d),
                         problem.space.with_box(lo, hi))
-        z, code, steps, cost, _ = run_local(p, solver, z0, max_steps)
+        z, result, steps, cost, _ = solve_traced(p, solver, z0, max_steps)
         x = p.space.free_from_u(u_from_z(z))
-        return x, _gn_std_errors(p, x), code, steps, cost
+        return x, _gn_std_errors(p, x), result, steps, cost
 
     return jax.vmap(one)(datas, lowers, uppers)
 
 
 def _fit_many(problem, datas, lowers, uppers, start, solver, max_steps, batch_size,
-              label=None, shard=None):
+              meter, shard=None):
     """`_fit_batch` over any number of members in batches of ``batch_size`` (the last one
-    padded, so that one compiled program serves every batch); NumPy outputs. ``datas``:
-    a pytree whose leaves have a leading member axis."""
+    padded, so that one compiled program serves every batch), driven batch by batch by
+    the one driver (progress, interruption). Returns (NumPy outputs of the members
+    fitted, how the loop ended). ``datas``: a pytree whose leaves have a leading member
+    axis."""
     z0 = start_z(problem, start)
     solver_ = make_solver(solver)
     R = len(lowers)
-    out = [], [], [], [], []
     t0 = time.perf_counter()
-    with interruptible() as stop:
-        for b in range(0, R, batch_size):
-            chunk = [jax.tree.map(lambda a, b=b: np.asarray(a)[b:b + batch_size], x)
-                     for x in (datas, lowers, uppers)]
-            pad = batch_size - len(chunk[1])
-            if pad:
-                chunk = [jax.tree.map(lambda a, pad=pad: np.concatenate(
-                    [a, np.repeat(a[-1:], pad, axis=0)]), x) for x in chunk]
-            # only on request: placed on a sharding, the batched time loop's batch-wide
-            # tests become cross-device reductions at every interval (benchmarks/RESULTS.md)
-            sharding = batch_sharding(batch_size, True) if shard else None
-            args = [jax.tree.map(lambda a, s=sharding: place(jnp.asarray(a), s), x) for x in chunk]
-            res = _fit_batch(problem, solver_, *args, z0, max_steps)
-            for acc, r in zip(out, res, strict=True):
-                acc.append(np.asarray(r)[: batch_size - pad])
-            if label:
-                print(f"[{label}] {min(b + batch_size, R)}/{R} fitted, "
-                      f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
-            if stop():
-                raise KeyboardInterrupt
-    return tuple(np.concatenate(a) for a in out)
+    # only on request: placed on a sharding, the batched time loop's batch-wide tests
+    # become cross-device reductions at every interval (benchmarks/RESULTS.md)
+    sharding = batch_sharding(batch_size, True) if shard else None
+
+    def advance(done):
+        b, out = done
+        chunk = [jax.tree.map(lambda a: np.asarray(a)[b:b + batch_size], x)
+                 for x in (datas, lowers, uppers)]
+        pad = batch_size - len(chunk[1])
+        if pad:
+            chunk = [jax.tree.map(lambda a: np.concatenate(
+                [a, np.repeat(a[-1:], pad, axis=0)]), x) for x in chunk]
+        args = [jax.tree.map(lambda a: place(jnp.asarray(a), sharding), x) for x in chunk]
+        res = jax.device_get(_fit_batch(problem, solver_, *args, z0, max_steps))
+        res = jax.tree.map(lambda r: np.asarray(r)[: batch_size - pad], res)
+        return b + batch_size, [*out, res]
+
+    def describe(done):
+        fitted = min(done[0], R)
+        return fitted, f"{fitted}/{R} fitted, {time.perf_counter() - t0:.1f} s"
+
+    meter_state = meter.init("fits", R)
+    (b, out), how, meter_state = drive(
+        (0, []), advance=advance, done=lambda done: done[0] >= R, describe=describe,
+        meter=meter, meter_state=meter_state)
+    meter.close(meter_state, f"{min(b, R)}/{R} fitted" + ("" if how == DONE else
+                                                          ", interrupted"))
+    if not out:
+        raise KeyboardInterrupt
+    return jax.tree.map(lambda *rs: np.concatenate(rs), *out), how
 
 
 def fit_replicates(problem, datasets, start, solver: str = "lm", max_steps: int = 100,
@@ -235,12 +251,14 @@ def fit_replicates(problem, datasets, start, solver: str = "lm", max_steps: int 
     first axis: R × N for a single-signal problem) from ``start``, in vmapped batches of
     ``batch_size``. ``shard=True`` spreads each batch over the devices (``batch_size`` a
     multiple of the device count, see `jaxhyst.sharding`); the default (None or False)
-    does not: on two CPU host devices 16 replicate fits took 0.54 s sharded against
-    0.14 s on one (benchmarks/RESULTS.md).
+    does not: on CPU host devices the sharded batch is slower (benchmarks/RESULTS.md).
 
     Returns a dict of NumPy arrays: ``values`` and ``std_errors`` (R × n_free, SI, in the
     order of ``problem.space.names``; standard errors assume every free parameter is
-    identifiable), ``cost`` (R,), ``steps`` (R,), ``results`` (names), ``names``."""
+    identifiable), ``cost`` (R,), ``steps`` (R,), ``results`` (names), ``names``, and
+    ``interrupted``: True when a stop request ended the fits early (then only the
+    replicates fitted so far, in order). Ctrl-C raises `jaxhyst.Interrupted` carrying
+    that dict. ``progress``: a progress meter or True (a line per batch)."""
     leaves = jax.tree.leaves(datasets)
     ref = jax.tree.leaves(problem.observations)
     if len(leaves) != len(ref) or any(np.shape(a)[1:] != np.shape(r)
@@ -252,11 +270,15 @@ def fit_replicates(problem, datasets, start, solver: str = "lm", max_steps: int 
     R = len(leaves[0])
     lowers = np.broadcast_to(np.asarray(problem.space.lower), (R, problem.space.n_free))
     uppers = np.broadcast_to(np.asarray(problem.space.upper), (R, problem.space.n_free))
-    values, se, codes, steps, cost = _fit_many(
+    (values, se, results, steps, cost), how = _fit_many(
         problem, datasets, lowers, uppers, start, solver, max_steps, min(batch_size, R),
-        "replicates" if progress else None, shard)
-    return {"names": problem.space.names, "values": values, "std_errors": se, "cost": cost,
-            "steps": steps, "results": [CODES[int(c)].value for c in codes]}
+        progress_meter(progress, every=1), shard)
+    out = {"names": problem.space.names, "values": values, "std_errors": se, "cost": cost,
+           "steps": steps, "results": [str(n) for n in np.atleast_1d(outcome_name(results))],
+           "interrupted": how != DONE}
+    if how == KEYBOARD:
+        raise Interrupted(out)
+    return out
 
 
 def coverage(values, std_errors, truth, level_z: float = Z95) -> np.ndarray:

@@ -3,28 +3,17 @@
 immutable results. The identifiability report is attached one level up (`jaxhyst.solve`,
 `jaxhyst.multistart`, `jaxhyst.run_hybrid`)."""
 
-from .hybrid import (
-    HYBRIDS,
-    CheckpointError,
-    GASettings,
-    GAState,
-    HybridGA,
-    bcga_generation,
-    fcga_generation,
-    run_hybrid,
-)
+from ._objective import jacobian_linearized
+from ._stepped import solve_traced
+from .checkpoint import CheckpointError
+from .hybrid import HYBRIDS, GAState, HybridGA
 from .joint import JointProblem, JointSpace, loop_problem
-from .local import jacobian_linearized, multistart, run_local, solve
-from .problem import (
-    OUTPUTS,
-    AbstractProblem,
-    GaussianPrior,
-    Problem,
-    ResidualGroup,
-    ResidualProblem,
-    synthetic_problem,
-)
-from .result import IdentificationResult, Outcome
+from .local import multistart, solve, start_z
+from .outputs import OUTPUTS, AbstractOutput, output_kind
+from .problem import AbstractProblem, GaussianPrior, ResidualGroup, ResidualProblem
+from .result import OUTCOME_NAMES, RESULTS, IdentificationResult, outcome_name
+from .run import hybrid_method, run_hybrid
+from .signal import Problem, SamplingWarning, synthetic_problem
 from .solvers import (
     SOLVERS,
     MultiplicativeDamping,
@@ -37,9 +26,9 @@ from .solvers import (
 from .space import ParameterSpace, u_from_z, z_from_u
 
 __all__ = [
+    "AbstractOutput",
     "AbstractProblem",
     "CheckpointError",
-    "GASettings",
     "GAState",
     "GaussianPrior",
     "HYBRIDS",
@@ -48,26 +37,30 @@ __all__ = [
     "JointProblem",
     "JointSpace",
     "MultiplicativeDamping",
+    "OUTCOME_NAMES",
     "OUTPUTS",
-    "Outcome",
     "PaperLMA",
     "PaperTRA",
     "PaperTrustRegion",
     "ParameterSpace",
     "Problem",
+    "RESULTS",
     "ResidualGroup",
     "ResidualProblem",
     "SOLVERS",
+    "SamplingWarning",
     "TwoDimensionalSubspaceDescent",
-    "bcga_generation",
-    "fcga_generation",
+    "hybrid_method",
     "jacobian_linearized",
     "loop_problem",
     "make_solver",
     "multistart",
+    "outcome_name",
+    "output_kind",
     "run_hybrid",
-    "run_local",
     "solve",
+    "solve_traced",
+    "start_z",
     "synthetic_problem",
     "u_from_z",
     "z_from_u",

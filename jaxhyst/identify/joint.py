@@ -31,11 +31,14 @@ import numpy as np
 
 from ..actuator import Actuator
 from ..drive import Drive, drive_from_record
-from ..model.jiles_atherton import JAVariant
+from ..model.jiles_atherton import AbstractJAVariant
 from ..model.simulate import DEFAULT_SUBSTEPS, PAPER_VARIANT, simulate_unchecked
 from ..params import STRUCTURAL, Bounds
+from ..saved import Model
 from ..sharding import batch_sharding, map_sharded
-from .problem import OUTPUTS, AbstractProblem, GaussianPrior, Problem, ResidualGroup
+from .outputs import output_kind
+from .problem import AbstractProblem, GaussianPrior, ResidualGroup
+from .signal import Problem
 from .space import JointSpace, ParameterSpace
 
 __all__ = ["JointProblem", "JointSpace", "NO_ACTUATOR", "STRUCTURAL", "fix_structural",
@@ -114,21 +117,19 @@ class JointProblem(AbstractProblem):
     scales: tuple = eqx.field(static=True)
     outputs: tuple = eqx.field(static=True)
     sigmas: tuple = eqx.field(static=True)
-    variant: JAVariant = PAPER_VARIANT
+    variant: AbstractJAVariant = PAPER_VARIANT
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
     shard_loops: bool = eqx.field(static=True, default=False)
     priors: tuple = eqx.field(static=True, default=())
 
     def __init__(self, data: Sequence, drives: Sequence[Drive], actuator: Actuator,
                  space: ParameterSpace, output: str | Sequence[str] = "displacement",
-                 variant: JAVariant = PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
+                 variant: AbstractJAVariant = PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
                  shard_loops: bool = False, sigma=None,
                  priors: Sequence[GaussianPrior] = ()):
         L = len(data)
         outputs = (output,) * L if isinstance(output, str) else tuple(output)
-        bad = [o for o in outputs if o not in OUTPUTS]
-        if bad:
-            raise ValueError(f"Unknown output(s) {bad}; choose from {list(OUTPUTS)}.")
+        outputs = tuple(output_kind(o).name for o in outputs)
         if len(outputs) != L:
             raise ValueError(f"{len(outputs)} outputs for {L} loops: give one per loop.")
         if len(drives) != L or space.n_loops != L:
@@ -181,13 +182,14 @@ class JointProblem(AbstractProblem):
 
     @property
     def unit(self) -> str:
-        units = {OUTPUTS[o][0] for o in self.outputs}
+        units = {output_kind(o).unit for o in self.outputs}
         return units.pop() if len(units) == 1 else "mixed"
 
     @property
     def groups(self) -> tuple[ResidualGroup, ...]:
         return tuple(ResidualGroup(f"loop {i} ({o})", int(sum(self.mask[i])),
-                                   OUTPUTS[o][0], self.sigmas[i], scale=self.scales[i])
+                                   output_kind(o).unit, self.sigmas[i], scale=self.scales[i],
+                                   data_size=self.scales[i])
                      for i, o in enumerate(self.outputs))
 
     def simulate(self, params):
@@ -202,10 +204,10 @@ class JointProblem(AbstractProblem):
         """Model output per loop, (L, n_obs) (padding included), each loop's own output."""
         sim = self.simulate(params)
         kinds = sorted(set(self.outputs))
-        out = OUTPUTS[kinds[0]][1](sim)
+        out = output_kind(kinds[0]).of(sim)
         for kind in kinds[1:]:  # elementwise per loop (a gather would undo loop sharding)
             this = np.array([o == kind for o in self.outputs])[:, None]
-            out = jnp.where(this, OUTPUTS[kind][1](sim), out)
+            out = jnp.where(this, output_kind(kind).of(sim), out)
         return out[:, self.drive.run_in:]
 
     def predict(self, params) -> jax.Array:
@@ -216,6 +218,11 @@ class JointProblem(AbstractProblem):
         e = self.predict_loops(params) - self.padded
         mask = np.asarray(self.mask)
         return tuple(e[i][mask[i]] for i in range(self.n_loops))
+
+    def model(self, params) -> Model:
+        """The identified model at ``params`` (this problem's actuator, form and
+        substeps), to simulate other drives or save (`jaxhyst.save_model`)."""
+        return Model(params, self.actuator, self.variant, self.substeps)
 
     @property
     def observations(self):
@@ -240,7 +247,7 @@ def space_bounds_of_loop(space: ParameterSpace) -> Bounds:
 
 def loop_problem(H, data, bounds: Bounds | dict | None = None, *,
                  output: str = "flux_density", t=None, fixed: dict | None = None,
-                 variant: JAVariant = PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
+                 variant: AbstractJAVariant = PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
                  from_demagnetized: bool = False, run_in_periods: int = 1,
                  monotone_field: bool = True, require_full_period: bool = True) -> Problem:
     """A magnetization-only problem from one measured loop.
@@ -268,7 +275,7 @@ def loop_problem(H, data, bounds: Bounds | dict | None = None, *,
     """
     from .measured import loop_bounds, monotone_branches
 
-    if output not in ("flux_density", "magnetization"):
+    if not output_kind(output).magnetic_only:
         raise ValueError("loop_problem observes magnetization or flux_density; use Problem "
                          "for displacement or strain.")
     H = np.asarray(H, dtype=float)

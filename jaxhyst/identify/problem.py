@@ -1,5 +1,7 @@
 """Identification problems: the protocol every solver, the GA and the analyses use, and
-the built-in problems.
+a problem from your own residual function (`ResidualProblem`). The built-in problems are
+`jaxhyst.identify.signal.Problem` (one signal of one drive) and
+`jaxhyst.identify.joint.JointProblem` (several loops).
 
 **The protocol** (`AbstractProblem`). A problem has a `ParameterSpace` (``space``) and
 named groups of residuals: ``group_residuals(params)`` returns, per `ResidualGroup`,
@@ -12,17 +14,16 @@ model − data in that group's unit. Everything else is defined once, here:
   in the box for a `ResidualProblem`: a mean squared error relative to the data's
   size, O(1) in any units) — followed by the priors' (θ − μ)/sd;
 - the **cost** (the objective every solver minimises and every result reports) is Σ r²;
-- the GA's fitness is F = 1/√(c1 + cost) (`Problem` keeps the paper's eq 35 in SI units).
+- the GA's fitness is F = 1/√(c1 + E) with E the sum of squared residuals in the data's
+  unit for a problem of one group without priors (the paper's eq 35), else the cost.
 
-A problem of your own is a subclass that implements ``space``, ``groups`` and
-``group_residuals`` (and ``with_data`` for replicate fits), or a `ResidualProblem` built
-from a residual function.
+A problem of your own is a final subclass of `AbstractProblem` that implements ``space``,
+``priors``, ``output``, ``groups``, ``group_residuals``, ``observations`` and
+``with_data`` (the last two for replicate fits: ``raise NotImplementedError`` if yours
+has no data to replace), or a `ResidualProblem` built from a residual function.
 """
 
-from __future__ import annotations
-
 import abc
-import warnings
 from collections.abc import Callable, Sequence
 
 import equinox as eqx
@@ -30,51 +31,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..actuator import Actuator
-from ..drive import Drive
-from ..model.jiles_atherton import JAVariant
-from ..model.simulate import (
-    DEFAULT_SUBSTEPS,
-    PAPER_VARIANT,
-    Simulation,
-    simulate,
-    simulate_unchecked,
-)
-from ..params import MU0, Bounds, Parameters, check_parameters
-from .measured import coarse_sampling, holds_loop
+from .._typing import Array, Float
 from .space import ParameterSpace, u_from_z
-
-
-class SamplingWarning(UserWarning):
-    """The record is sampled too coarsely for the RK4 substeps asked for."""
-
-
-def _caller_level() -> int:
-    """The ``stacklevel`` that points a warning raised in this module at the first frame
-    outside jaxhyst and equinox (the user's line that built the problem)."""
-    import inspect
-
-    frame, level = inspect.currentframe().f_back, 1  # the function that warns
-    while frame is not None and frame.f_globals.get("__name__", "").split(".")[0] in (
-            "jaxhyst", "equinox"):
-        frame, level = frame.f_back, level + 1
-    return level
-
-#: Observable outputs: name → (unit, function of a Simulation).
-OUTPUTS = {
-    "displacement": ("m", lambda sim: sim.y),
-    "strain": ("1", lambda sim: sim.strain),
-    "magnetostriction": ("1", lambda sim: sim.lam),
-    "magnetization": ("A/m", lambda sim: sim.M),
-    "flux_density": ("T", lambda sim: MU0 * (sim.H + sim.M)),
-}
-
-
-#: Largest magnitude of each output any magnetostrictive material or actuator shows (SI):
-#: data beyond it are a unit or column mistake, refused before a fit.
-PLAUSIBLE = {"displacement": 1.0, "strain": 1.0, "magnetostriction": 1.0,
-             "magnetization": 1e8, "flux_density": 100.0}
-
 
 _TRACED = object()
 
@@ -100,6 +58,8 @@ class ResidualGroup(eqx.Module):
     - ``scale``: the data's size (unit): max|data| for a `Problem`; for a
       `ResidualProblem` the largest RMS of the group's residuals at the box's centre and
       quarter points unless given. The normaliser without sigma is scale·√(size/weight).
+    - ``data_size``: max|data| of the group (unit) where the problem knows it (the
+      built-in problems), else None: results say how far a fit is from its data.
     """
 
     name: str = eqx.field(static=True)
@@ -108,6 +68,7 @@ class ResidualGroup(eqx.Module):
     sigma: float | jax.Array | None = None  # (data, not structure: a new data set's σ
     weight: float = eqx.field(static=True, default=1.0)
     scale: float | jax.Array = 1.0  # and scale do not recompile a fit)
+    data_size: float | jax.Array | None = None
 
     def __check_init__(self):
         sigma, scale = _concrete(self.sigma), _concrete(self.scale)
@@ -149,15 +110,18 @@ class GaussianPrior(eqx.Module):
 class AbstractProblem(eqx.Module):
     """The protocol of an identification problem (see the module docstring).
 
-    Subclasses provide ``space`` (a `ParameterSpace`), ``priors`` (a tuple of
-    `GaussianPrior`, possibly empty), the property ``groups`` (tuple of `ResidualGroup`)
-    and ``group_residuals(params)`` (tuple of arrays, one per group, model − data in the
-    group's unit). ``with_data(data)`` returns the problem with other observations (same
-    shapes; used by replicate fits).
+    A final subclass provides ``space`` (a `ParameterSpace`), ``priors`` (a tuple of
+    `GaussianPrior`, possibly empty), ``output`` (what it observes, in words: a name of
+    `jaxhyst.identify.outputs.OUTPUTS` for the built-in problems), the property
+    ``groups`` (tuple of `ResidualGroup`), ``group_residuals(params)`` (tuple of arrays,
+    one per group, model − data in the group's unit), ``observations`` (the data, a
+    pytree) and ``with_data(data)`` (the problem with other observations of the same
+    shapes; used by replicate fits). The rest is defined here, once.
     """
 
     space: eqx.AbstractVar[ParameterSpace]
     priors: eqx.AbstractVar[tuple]
+    output: eqx.AbstractVar[str]
 
     @property
     @abc.abstractmethod
@@ -168,15 +132,15 @@ class AbstractProblem(eqx.Module):
     def group_residuals(self, params) -> tuple:
         """model − data of each group (its unit), at the parameter pytree ``params``."""
 
-    def with_data(self, data) -> AbstractProblem:
-        """This problem with other observations (the pytree ``data`` has the structure of
-        `observations`)."""
-        raise NotImplementedError(f"{type(self).__name__} does not support other data.")
-
     @property
+    @abc.abstractmethod
     def observations(self):
         """The observed data (a pytree; `with_data` takes the same structure)."""
-        raise NotImplementedError(f"{type(self).__name__} does not expose its data.")
+
+    @abc.abstractmethod
+    def with_data(self, data) -> "AbstractProblem":
+        """This problem with other observations (the pytree ``data`` has the structure of
+        `observations`)."""
 
     # -- defined once for every problem ------------------------------------------------------
     def _check_priors(self):
@@ -194,7 +158,7 @@ class AbstractProblem(eqx.Module):
     def n_residuals(self) -> int:
         return sum(g.size for g in self.groups) + len(self.priors)
 
-    def residuals_params(self, params) -> jax.Array:
+    def residuals_params(self, params) -> Float[Array, " R"]:
         """The problem's residual vector at a parameter pytree (see the module doc)."""
         parts = [jnp.ravel(r) / g.normaliser
                  for r, g in zip(self.group_residuals(params), self.groups, strict=True)]
@@ -215,162 +179,32 @@ class AbstractProblem(eqx.Module):
             i += g.size
         return tuple(out)
 
-    def residuals_u(self, u) -> jax.Array:
+    def residuals_u(self, u: Float[Array, " n"]) -> Float[Array, " R"]:
         """The residual vector at box coordinates u ∈ [0, 1]ⁿ (the GA's)."""
         return self.residuals_params(self.space.params_from_u(u))
 
-    def residuals(self, z, args=None) -> jax.Array:
+    def residuals(self, z: Float[Array, " n"], args=None) -> Float[Array, " R"]:
         """The residual vector at solver coordinates z: Optimistix's ``fn(y, args)``."""
         del args
         return self.residuals_u(u_from_z(z))
 
-    def cost_u(self, u) -> jax.Array:
+    def cost_u(self, u: Float[Array, " n"]) -> Float[Array, ""]:
         """The cost Σ r² at box coordinates u."""
         return jnp.sum(self.residuals_u(u) ** 2)
 
-    def cost(self, z, args=None) -> jax.Array:
+    def cost(self, z: Float[Array, " n"], args=None) -> Float[Array, ""]:
         """The cost Σ r² at solver coordinates z (Optimistix minimiser form)."""
         del args
         return self.cost_u(u_from_z(z))
 
     def fitness_from_cost(self, cost, c1: float = 1e-30) -> jax.Array:
-        """GA fitness F = 1/√(c1 + cost); non-finite costs get F = 0."""
-        return jnp.where(jnp.isfinite(cost), 1.0 / jnp.sqrt(c1 + cost), 0.0)
-
-
-class Problem(AbstractProblem):
-    """Identify `Parameters` from one observed signal of one drive.
-
-    **Arguments:**
-    - ``data``: observed samples, shape (T_obs,), in the unit of ``output``; aligned with
-      the drive's observed samples (after its run-in).
-    - ``drive``: the `Drive` that produced the data (t in s, H in A/m).
-    - ``actuator``: known `Actuator` constants.
-    - ``space``: a `ParameterSpace` (bounds, free and fixed parameters).
-    - ``output``: one of ``displacement`` (m), ``strain``, ``magnetostriction``,
-      ``magnetization`` (A/m), ``flux_density`` (T, B = μ0(H + M)).
-    - ``variant``, ``substeps``: model settings, as in `simulate`.
-    - ``sigma``: the data's noise level (unit of ``output``) if known; ``priors``: a
-      sequence of `GaussianPrior` (needs ``sigma``).
-    - ``require_full_period``: refuse data whose field holds no loop (the turning-point
-      rule of `jaxhyst.identify.measured`: noise reversals below 5 % of the range do not
-      count), which cannot determine a hysteresis loop.
-
-    Warns (`SamplingWarning`) when the field moves more than 1 % of its range per RK4
-    substep, where the documented accuracy no longer holds.
-    """
-
-    data: jax.Array
-    drive: Drive
-    actuator: Actuator
-    space: ParameterSpace
-    scale: jax.Array  # max|data| (0-d; data, so a new data set does not recompile)
-    output: str = eqx.field(static=True, default="displacement")
-    variant: JAVariant = PAPER_VARIANT
-    substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
-    sigma: jax.Array | None = None  # the noise level (0-d), if known
-    priors: tuple = eqx.field(static=True, default=())
-
-    def __init__(self, data, drive: Drive, actuator: Actuator, space: ParameterSpace,
-                 output: str = "displacement", variant: JAVariant = PAPER_VARIANT,
-                 substeps: int = DEFAULT_SUBSTEPS, require_full_period: bool = True,
-                 sigma: float | None = None, priors: Sequence[GaussianPrior] = ()):
-        if output not in OUTPUTS:
-            raise ValueError(f"Unknown output {output!r}; choose one of {list(OUTPUTS)}.")
-        if not isinstance(drive, Drive):
-            raise TypeError(f"drive must be a jaxhyst.Drive; got {type(drive).__name__}.")
-        if not isinstance(space, ParameterSpace):
-            raise TypeError("space must be a jaxhyst.ParameterSpace (bounds + fixed values).")
-        data = np.asarray(data, dtype=np.float64)
-        if data.ndim != 1:
-            raise ValueError(f"data must be 1-D (one observed signal); got shape {data.shape}.")
-        if data.shape[0] != drive.n_observed:
-            raise ValueError(
-                f"data has {data.shape[0]} samples but the drive observes {drive.n_observed} "
-                f"(it has {drive.n_samples} samples, {drive.run_in} of them run-in); give one "
-                "data sample per observed drive sample."
-            )
-        if not np.all(np.isfinite(data)):
-            bad = np.flatnonzero(~np.isfinite(data))[:5].tolist()
-            raise ValueError(f"data contain NaN or inf at samples {bad}; remove or repair them.")
-        H_obs = np.asarray(drive.observed(drive.H))
-        if require_full_period and not holds_loop(H_obs):
-            raise ValueError(
-                "The observed field holds no hysteresis loop: after its first turning point "
-                "(a reversal larger than 5 % of its range) it must sweep back over 90 % of "
-                "its range. Observe a whole period or loop (or pass "
-                "require_full_period=False)."
-            )
-        coarse = coarse_sampling(H_obs, int(substeps))
-        if coarse is not None:
-            warnings.warn(coarse, SamplingWarning, stacklevel=_caller_level())
-        big = np.flatnonzero(np.abs(data) > PLAUSIBLE[output])
-        if big.size:
-            i = int(big[0])
-            raise ValueError(
-                f"data[{i}] = {data[i]:g} {OUTPUTS[output][0]} is beyond any {output} "
-                f"(|value| <= {PLAUSIBLE[output]:g} {OUTPUTS[output][0]}); check the unit "
-                "and the column of that sample.")
-        scale = float(np.max(np.abs(data)))
-        if scale == 0.0:
-            raise ValueError("data are identically zero; nothing to fit.")
-        self.data = jnp.asarray(data)
-        self.drive = drive
-        self.actuator = actuator
-        self.space = space
-        self.scale = jnp.asarray(scale, dtype=jnp.float64)
-        self.output = output
-        self.variant = variant
-        self.substeps = int(substeps)
-        self.sigma = None if sigma is None else jnp.asarray(float(sigma), dtype=jnp.float64)
-        self.priors = tuple(priors)
-        self._check_priors()
-
-    # -- model ----------------------------------------------------------------------
-    def simulate(self, params: Parameters) -> Simulation:
-        return simulate_unchecked(params, self.actuator, self.drive, self.variant,
-                                  self.substeps)
-
-    def predict(self, params: Parameters) -> jax.Array:
-        """The model's observed output at ``params`` (unit of ``output``)."""
-        return self.drive.observed(OUTPUTS[self.output][1](self.simulate(params)))
-
-    @property
-    def unit(self) -> str:
-        """Unit of the observed output."""
-        return OUTPUTS[self.output][0]
-
-    @property
-    def groups(self) -> tuple[ResidualGroup, ...]:
-        return (ResidualGroup(self.output, int(self.data.shape[0]), self.unit, self.sigma,
-                              scale=self.scale),)
-
-    def group_residuals(self, params) -> tuple:
-        return (self.predict(params) - self.data,)
-
-    @property
-    def observations(self):
-        return self.data
-
-    def with_data(self, data) -> Problem:
-        return eqx.tree_at(lambda q: q.data, self, jnp.asarray(data, dtype=jnp.float64))
-
-    def with_fixed(self, fixed: dict[str, float]) -> Problem:
-        """The same problem with the parameters in ``fixed`` ({name: SI value}) held fixed:
-        the reparameterisation an `IdentifiabilityReport.suggest_fixed` asks for."""
-        return eqx.tree_at(lambda q: q.space, self,
-                           self.space.with_fixed({n: float(v) for n, v in fixed.items()}))
-
-    def objective(self, params: Parameters) -> jax.Array:
-        """The paper's E(θ) = Σ_k (y(k) − ỹ(k, θ))² (eq 15), in the output's unit squared."""
-        return jnp.sum((self.predict(params) - self.data) ** 2)
-
-    def fitness_from_cost(self, cost, c1: float = 1e-30) -> jax.Array:
-        """The paper's F = 1/√(c1 + E) (eq 35), E in SI units recovered from the cost
-        (E = cost·normaliser² without priors). Non-finite costs get F = 0."""
-        if self.priors:
-            return super().fitness_from_cost(cost, c1)
-        E = cost * self.groups[0].normaliser ** 2
+        """GA fitness F = 1/√(c1 + E); non-finite costs get F = 0. E is the paper's
+        E(θ) = Σ(y − ỹ)² in the data's unit (eq 35; recovered from the cost as
+        cost·normaliser²) for a problem of one residual group without priors, else the
+        cost itself."""
+        E = cost
+        if len(self.groups) == 1 and not self.priors:
+            E = cost * self.groups[0].normaliser ** 2
         return jnp.where(jnp.isfinite(E), 1.0 / jnp.sqrt(c1 + E), 0.0)
 
 
@@ -398,6 +232,7 @@ class ResidualProblem(AbstractProblem):
     group_spec: tuple = eqx.field(static=True)
     priors: tuple = eqx.field(static=True, default=())
     single: bool = eqx.field(static=True, default=False)
+    output: str = eqx.field(static=True, default="residuals")
 
     def __init__(self, fn: Callable, space: ParameterSpace, data=None,
                  groups: dict | None = None, priors: Sequence[GaussianPrior] = ()):
@@ -453,7 +288,7 @@ class ResidualProblem(AbstractProblem):
     def observations(self):
         return self.data
 
-    def with_data(self, data) -> ResidualProblem:
+    def with_data(self, data) -> "ResidualProblem":
         return eqx.tree_at(lambda q: q.data, self, data, is_leaf=lambda x: x is None)
 
 
@@ -478,25 +313,3 @@ def _residual_sizes(fn, space, data, single: bool, names) -> dict:
             if np.isfinite(rms):
                 sizes[name] = max(sizes[name], rms)
     return {name: size if size > 0 else 1.0 for name, size in sizes.items()}
-
-
-def synthetic_problem(params: Parameters, drive: Drive, actuator: Actuator, bounds: Bounds,
-                      fixed: Sequence[str] | dict | None = None, output: str = "displacement",
-                      noise: float = 0.0, key=None, **kwargs) -> Problem:
-    """A problem whose data are simulated at ``params`` (plus Gaussian noise of standard
-    deviation ``noise``, in the output's unit). ``fixed`` lists parameter names to hold at
-    their values in ``params`` (or gives ``{name: value}``)."""
-    check_parameters(params)
-    if fixed is not None and not isinstance(fixed, dict):
-        fixed = {n: float(getattr(params, n)) for n in fixed}
-    space = ParameterSpace(bounds, fixed)
-    # compiled as one program (op by op, the first call compiled ~150 small programs)
-    sim = simulate(params, actuator, drive, kwargs.get("variant", PAPER_VARIANT),
-                   kwargs.get("substeps", DEFAULT_SUBSTEPS))
-    # the observed part sliced in NumPy (eagerly, JAX would compile the slice on its own)
-    data = np.asarray(OUTPUTS[output][1](sim))[drive.run_in:]
-    if noise:
-        if key is None:
-            raise ValueError("noise > 0 needs a jax.random key for reproducibility.")
-        data = data + noise * jax.random.normal(key, data.shape)
-    return Problem(data, drive, actuator, space, output=output, **kwargs)

@@ -1,35 +1,71 @@
 """Identification results: immutable, with an outcome that never calls a stopped-short
-or non-finite fit a success."""
+or non-finite fit a success.
+
+Outcomes are one type everywhere, `RESULTS`: Optimistix's results enumeration (which
+the solvers return inside compiled code, batched under ``vmap``) extended with
+``interrupted``. On the host a result also has a short name (`outcome_name`), the one
+written to result files.
+"""
 
 from __future__ import annotations
 
 import dataclasses
-import enum
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
+import jax
 import numpy as np
+import optimistix as optx
 
-from ..params import NAMES, STRUCTURAL, UNITS, at_physical_limit
+from ..params import NAMES, STRUCTURAL, UNITS, Parameters, at_physical_limit
+from .outputs import MAGNETIC_OUTPUTS
 
 
-class Outcome(str, enum.Enum):
-    """How an identification ended.
+class RESULTS(optx.RESULTS):  # pyright: ignore
+    interrupted = ("The run was stopped (Ctrl-C, SIGTERM or stop_after) and returns the "
+                   "best point so far.")
 
-    - ``successful``: the solver's convergence test passed and the cost is finite;
-    - ``max_steps_reached``: it stopped at its step limit without converging (the fit
-      stopped short: more steps, or another start, may do better);
-    - ``nonfinite``: the cost is NaN or inf (the model diverged or the data hold such);
-    - ``failed``: the solver reported another failure (a singular linear solve …);
-    - ``interrupted``: the run was stopped (Ctrl-C, SIGTERM, ``stop_after``) and returns
-      the best point so far.
-    """
 
-    successful = "successful"
-    max_steps_reached = "max_steps_reached"
-    nonfinite = "nonfinite"
-    failed = "failed"
-    interrupted = "interrupted"
+#: Short names of outcomes (`outcome_name`), as result files write them:
+#: ``successful`` — the solver's convergence test passed and the cost is finite;
+#: ``max_steps_reached`` — it stopped at its step limit without converging (more steps,
+#: or another start, may do better); ``nonfinite`` — the cost is NaN or inf (the model
+#: diverged or the data hold such); ``failed`` — another failure (a singular linear
+#: solve …); ``interrupted`` — stopped early, the best point so far.
+OUTCOME_NAMES = ("successful", "max_steps_reached", "nonfinite", "failed", "interrupted")
+
+#: `RESULTS` entries by short name (the others are ``failed``).
+_BY_NAME = {
+    "successful": ("successful",),
+    "max_steps_reached": ("nonlinear_max_steps_reached", "max_steps_reached"),
+    "nonfinite": ("nonfinite", "nonfinite_input"),
+    "interrupted": ("interrupted",),
+}
+
+
+def outcome_name(result) -> str | np.ndarray:
+    """The short name (`OUTCOME_NAMES`) of a `RESULTS` value (host value; an array of
+    names for a batch of them)."""
+    names = np.full(np.shape(jax.tree.leaves(result)[0]), "failed", dtype=object)
+    for short, entries in _BY_NAME.items():
+        for entry in entries:
+            names[np.asarray(result == getattr(RESULTS, entry))] = short
+    return str(names) if names.ndim == 0 else names
+
+
+def as_result(outcome) -> RESULTS:
+    """A `RESULTS` value from itself or from a short name (`OUTCOME_NAMES`)."""
+    if isinstance(outcome, RESULTS):
+        return outcome
+    if isinstance(outcome, str) and outcome in OUTCOME_NAMES:
+        return getattr(RESULTS, _BY_NAME.get(outcome, ("nonlinear_divergence",))[0])
+    raise ValueError(f"outcome must be a jaxhyst.RESULTS value or one of {OUTCOME_NAMES}; "
+                     f"got {outcome!r}.")
+
+
+def member(result, k: int) -> RESULTS:
+    """Member ``k`` of a batch of `RESULTS` values (host values)."""
+    return jax.tree.map(lambda v: np.asarray(v)[k], result)
 
 
 def _frozen(d):
@@ -75,7 +111,8 @@ class IdentificationResult:
     - ``free``: names of the free entries; ``values``: their SI values (the order of
       ``free``).
     - ``cost``: the problem's own objective Σr² at ``params`` (see `AbstractProblem`).
-    - ``outcome``: an `Outcome`; ``steps``: solver iterations (GA: generations).
+    - ``outcome``: a `RESULTS` value (``result`` is its short name, `OUTCOME_NAMES`);
+      ``steps``: solver iterations (GA: generations).
     - ``groups``: per residual group, ``{"rms", "max_abs", "unit", "sigma", "size"}`` of
       model − data in the group's unit.
     - ``rms_error``, ``max_abs_error``: over all residual groups when they share a unit
@@ -93,7 +130,7 @@ class IdentificationResult:
     free: tuple[str, ...]
     values: tuple[float, ...]
     cost: float
-    outcome: Outcome
+    outcome: RESULTS
     steps: int
     solver: str
     wall_time: float
@@ -108,20 +145,21 @@ class IdentificationResult:
     at_bound: MappingProxyType = field(default_factory=lambda: _frozen({}))
 
     def __post_init__(self):
-        object.__setattr__(self, "outcome", Outcome(self.outcome))
+        object.__setattr__(self, "outcome", as_result(self.outcome))
         object.__setattr__(self, "at_bound", _frozen(self.at_bound))
         object.__setattr__(self, "extra", _frozen(self.extra))
         object.__setattr__(self, "groups", _frozen(self.groups))
 
     @property
     def result(self) -> str:
-        """The outcome's name (``"successful"``, ``"max_steps_reached"`` …)."""
-        return self.outcome.value
+        """The outcome's short name (``"successful"``, ``"max_steps_reached"`` …:
+        `OUTCOME_NAMES`)."""
+        return outcome_name(self.outcome)
 
     @property
     def success(self) -> bool:
         """True only for a converged fit with a finite cost."""
-        return self.outcome is Outcome.successful and bool(np.isfinite(self.cost))
+        return self.result == "successful" and bool(np.isfinite(self.cost))
 
     @property
     def far_from_data(self) -> tuple[str, ...]:
@@ -143,10 +181,10 @@ class IdentificationResult:
         """What a user must know before trusting the fit, one line each: a stopped-short
         or failed outcome, loops far from their data, parameters at a bound."""
         out = []
-        if self.outcome is Outcome.max_steps_reached:
+        if self.result == "max_steps_reached":
             out.append("the fit stopped at its step limit before converging: allow more "
                        "steps, or start again from this result")
-        elif self.outcome in (Outcome.nonfinite, Outcome.failed):
+        elif self.result in ("nonfinite", "failed"):
             out.append(f"the fit failed ({self.result}): the cost is not a valid optimum")
         for k in self.far_from_data:
             g = self.groups[k]
@@ -172,21 +210,23 @@ class IdentificationResult:
     @property
     def n_loops(self) -> int | None:
         """Number of loops of a joint identification (parameters with leaves (L,))."""
-        ms = getattr(self.params, "Ms", None)
-        return None if ms is None or np.ndim(ms) == 0 else int(np.shape(ms)[0])
+        if not self._is_parameters() or np.ndim(self.params.Ms) == 0:
+            return None
+        return int(np.shape(self.params.Ms)[0])
 
     def with_report(self, report=None, error: str | None = None) -> IdentificationResult:
         """A copy with the identifiability report (or the reason it is missing)."""
         return dataclasses.replace(self, report=report, report_error=error)
 
-    def with_outcome(self, outcome: Outcome, **extra) -> IdentificationResult:
-        """A copy with another outcome (and extra details merged in)."""
-        return dataclasses.replace(self, outcome=Outcome(outcome),
+    def with_outcome(self, outcome, **extra) -> IdentificationResult:
+        """A copy with another outcome (a `RESULTS` value or a short name; extra details
+        merged in)."""
+        return dataclasses.replace(self, outcome=as_result(outcome),
                                    extra={**self.extra, **extra})
 
     # -- presentation -----------------------------------------------------------------------
     def _is_parameters(self) -> bool:
-        return all(hasattr(self.params, n) for n in NAMES)
+        return isinstance(self.params, Parameters)
 
     def _value(self, n):
         v = np.asarray(getattr(self.params, n), dtype=float)
@@ -233,7 +273,7 @@ class IdentificationResult:
             for name, g in self.groups.items():
                 lines.append(f"    {name}: rms {g['rms']:.3e} {g['unit']}, "
                              f"max {g['max_abs']:.3e} {g['unit']}")
-        magnetic_only = self.output in ("magnetization", "flux_density")
+        magnetic_only = self.output in MAGNETIC_OUTPUTS
         if self._is_parameters():
             for n in NAMES:
                 if magnetic_only and n in STRUCTURAL and not self._is_free(n):

@@ -12,12 +12,13 @@ the small amount of Optimistix solver state jaxhyst reads.
 
 Any Optimistix least-squares solver or minimiser object may be passed instead of a name.
 
-**Optimistix state read here** (public classes, private state layout; tested with
-optimistix 0.1.0, pinned ``>=0.1.0,<0.2``; `tests/test_identify.py` checks both): the
-Gauss–Newton family's state fields ``first_step``, ``num_accepted_steps``, ``f_info``
-(its residual at the accepted point, for the cost at the end of a solve),
-``terminate`` (by `BoxTermination`), and ``search_state.step_size`` of a finished solve
-(the damping or radius a hybrid carries to its next local search).
+**Optimistix state read here** (public classes, private state layout; the tested range
+of optimistix is pinned in ``pyproject.toml`` and `tests/test_identify.py` checks each
+read): the Gauss–Newton family's state fields ``first_step``, ``num_accepted_steps``,
+``f_info`` (its residual at the accepted point, for the cost at the end of a solve),
+``terminate`` (by `BoxTermination`), and ``search_state.step_size`` of a finished LMA or
+TRA solve (the damping or radius a hybrid carries to its next local search). Every read
+is in this module, chosen by the solver's type.
 """
 
 from __future__ import annotations
@@ -194,8 +195,8 @@ def _relaxed_lm(rtol, atol):
     # 0.99 of its predicted reduction (Gould et al.'s constants). Normalised residuals give
     # JᵀJ entries of 1e-3–0.2 against λ = 1 at the start, and the piecewise-smooth
     # hysteresis model rarely reaches ρ > 0.99, so λ stayed large and LM crept like
-    # gradient descent. Relaxing at ρ > 0.75 cut the median steps from 16 random starts
-    # 140 → 42 (MnZn joint loops), 62 → 47 and 112 → 87 (Table 1) — docs/identification.md.
+    # gradient descent. Relaxing at ρ > 0.75 cuts the steps several-fold (measured in
+    # benchmarks/RESULTS.md and docs/identification.md).
     lm = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     return eqx.tree_at(lambda s: s.search, lm, optx.ClassicalTrustRegion(high_cutoff=0.75))
 
@@ -233,20 +234,30 @@ def solver_name(solver) -> str:
     return solver if isinstance(solver, str) else type(solver).__name__
 
 
+def _carried_search(solver):
+    """The search of a solver whose step size a hybrid carries between local searches
+    (`MultiplicativeDamping` of the LMA, `PaperTrustRegion` of the TRA), or None."""
+    if isinstance(solver, optx.AbstractGaussNewton) and isinstance(
+            solver.search, (MultiplicativeDamping, PaperTrustRegion)):
+        return solver.search
+    return None
+
+
 def with_initial_step_size(solver, step_size):
     """``solver`` starting from a given damping (LMA: h = 1/step_size) or radius (TRA:
     Δ = step_size); other solvers are returned unchanged (their searches restart at 1)."""
     step_size = jnp.asarray(step_size, dtype=float)
-    if isinstance(getattr(solver, "search", None), MultiplicativeDamping):
+    search = _carried_search(solver)
+    if isinstance(search, MultiplicativeDamping):
         return eqx.tree_at(lambda s: s.search.initial_damping, solver, 1.0 / step_size)
-    if isinstance(getattr(solver, "search", None), PaperTrustRegion):
+    if isinstance(search, PaperTrustRegion):
         return eqx.tree_at(lambda s: s.search.initial_radius, solver, step_size)
     return solver
 
 
 def initial_step_size(solver) -> float:
     """The step size a solver's search starts from (LMA: 1/h1 = 100; TRA: Δ1; else 1)."""
-    search = getattr(solver, "search", None)
+    search = _carried_search(solver)
     if isinstance(search, MultiplicativeDamping):
         return float(1.0 / search.initial_damping)
     if isinstance(search, PaperTrustRegion):
@@ -271,8 +282,8 @@ class BoxTermination(optx.AbstractLeastSquaresSolver):
     and the test on the z step (|Δz| < atol + rtol·|z|) needs ~30 more steps after u has
     converged to round-off. This wrapper stops an *accepted* step also when the same test
     passes with u in place of z (and the usual test on the residuals passes). Interior
-    optima are unaffected; on the joint MnZn loops the median steps of 16 starts fell
-    42 → 32 (`lm`) and 200 → 55 (`lma`). Reads the Gauss–Newton state (module docstring).
+    optima are unaffected (the steps saved are in benchmarks/RESULTS.md). Reads the
+    Gauss–Newton state (module docstring).
     """
 
     inner: optx.AbstractLeastSquaresSolver
@@ -309,21 +320,23 @@ class BoxTermination(optx.AbstractLeastSquaresSolver):
         return self.inner.postprocess(fn, y, aux, args, options, state, tags, result)
 
 
-def accepted_residuals(state):
-    """The residual vector at the accepted point of a Gauss–Newton-family state (the
-    point its ``step`` returns; placeholder zeros while ``num_accepted_steps`` is 0), or
-    None for a state of another kind."""
-    f_info = getattr(state, "f_info", None)
-    if isinstance(f_info, optx.FunctionInfo.ResidualJac) and hasattr(state,
-                                                                    "num_accepted_steps"):
-        return f_info.residual
-    return None
+def _inner(solver):
+    """The solver a `BoxTermination` wraps (its state is that solver's), else itself."""
+    return solver.inner if isinstance(solver, BoxTermination) else solver
 
 
-def final_step_size(state):
-    """The search's step size in a finished solve's state (NaN if it has none)."""
-    search_state = getattr(state, "search_state", None)
-    if search_state is None and hasattr(state, "inner"):
-        search_state = getattr(state.inner, "search_state", None)
-    step = getattr(search_state, "step_size", None)
-    return jnp.nan if step is None else step
+def accepted_residuals(solver, state):
+    """(residual vector at the accepted point, accepted steps) of the state of a solve by
+    ``solver`` (as run) of the Gauss–Newton family — the point its ``step`` returns;
+    placeholder zeros while no step is accepted — or None for another kind of solver."""
+    if not isinstance(_inner(solver), optx.AbstractGaussNewton):
+        return None
+    return state.f_info.residual, state.num_accepted_steps
+
+
+def final_step_size(solver, state):
+    """The damping (1/h) or radius a finished solve by ``solver`` (as run) ended with,
+    for the solvers a hybrid carries it for (`with_initial_step_size`); NaN otherwise."""
+    if _carried_search(_inner(solver)) is None:
+        return jnp.nan
+    return state.search_state.step_size

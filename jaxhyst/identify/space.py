@@ -25,15 +25,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._typing import Array, ArrayLike, Float
 from ..params import NAMES, Bounds, Parameters, check_value
 
 
-def u_from_z(z):
+def u_from_z(z: Float[ArrayLike, "*batch n"]) -> Float[Array, "*batch n"]:
     """Box coordinate u ∈ [0, 1] from the unconstrained z (periodic sine map)."""
     return 0.5 * (1.0 + jnp.sin(z))
 
 
-def z_from_u(u):
+def z_from_u(u: Float[ArrayLike, "*batch n"]) -> Float[Array, "*batch n"]:
     """The z ∈ [−π/2, π/2] that maps to u (inverse of `u_from_z` on its principal branch)."""
     return jnp.arcsin(jnp.clip(2.0 * jnp.asarray(u) - 1.0, -1.0, 1.0))
 
@@ -205,11 +206,6 @@ class ParameterSpace(eqx.Module):
     @property
     def n_free(self) -> int:
         return len(self.names)
-
-    @property
-    def free(self) -> tuple[str, ...]:
-        """Hashable description of the free set (checkpoint fingerprints)."""
-        return self.names
 
     @property
     def n_loops(self) -> int | None:

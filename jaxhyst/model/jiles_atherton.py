@@ -1,12 +1,14 @@
 """Jiles–Atherton magnetization: pluggable forms of the slope dM/dH.
 
-A variant is a small, final ``equinox.Module`` with one required method,
-``slope(H, M, delta, p)``, returning dM/dH (dimensionless) at applied field ``H`` (A/m) and
-total magnetization ``M`` (A/m) while the field moves in direction ``delta`` (±1). The
-integrator in `jaxhyst.model.magnetization` owns the loop; a new variant plugs in without
-touching it. The built-in forms derive from `AnhystereticForm`, which evaluates the
-Langevin function once per call of `JAVariant.evaluate` (slope and switch distance
-together, the integrator's hot path).
+A variant is a small ``equinox.Module``: abstract classes declare what a form provides,
+the forms themselves are final (equinox's abstract-or-final rule: no concrete method is
+overridden). `AbstractJAVariant` is the interface the integrator in
+`jaxhyst.model.magnetization` calls — the slope dM/dH at applied field ``H`` (A/m) and
+total magnetization ``M`` (A/m) while the field moves in direction ``delta`` (±1), the
+δM switch distance with it, and Mirr — so a new form plugs in without touching the loop.
+The built-in forms implement `AbstractAnhystereticForm`, which evaluates the Langevin
+function once per call of ``evaluate`` (slope and switch distance together, the
+integrator's hot path).
 
 State is the *total* magnetization M. With He = H + α̃·M every quantity below is an
 explicit function of (H, M), so no implicit equation has to be solved per step.
@@ -37,67 +39,75 @@ def _pinned_ratio(numerator, denominator, active):
     return jnp.where(active, numerator / safe, 0.0)
 
 
-class JAVariant(eqx.Module):
-    """Interface of a Jiles–Atherton form: ``slope(H, M, delta, p, pinning) -> dM/dH``.
+class AbstractJAVariant(eqx.Module):
+    """Interface of a Jiles–Atherton form (abstract; the built-in forms are final).
 
-    ``pinning`` (bool, default True) lets the irreversible term act wherever the δM rule
-    allows; False forces the purely reversible branch. The integrator uses it to step
-    exactly up to the point where δM switches on after a field reversal (a kink in dM/dH).
-    ``distance_to_switch`` returns δ·(Man − M): the irreversible term is active where it
-    is > 0, so where it is ≤ 0 the slope must not depend on ``pinning`` (the integrator
-    reuses the slope it evaluated there with pinning as the reversible one).
+    - ``slope(H, M, delta, p, pinning=True)``: dM/dH (1) at field H (A/m) and
+      magnetization M (A/m) with the field moving in direction ``delta`` = ±1.
+      ``pinning=False`` forces the purely reversible branch; the integrator uses it to
+      step exactly up to the point where δM switches on after a field reversal (a kink
+      in dM/dH).
+    - ``evaluate(H, M, delta, p, pinning=True)``: (dM/dH, d, dd/dH along the path M(H)
+      of that slope), where d is the switch distance δ·(Man − M) (A/m): the
+      irreversible term acts where d > 0, so where d ≤ 0 the slope must not depend on
+      ``pinning`` (the integrator reuses the slope it evaluated there as the reversible
+      one). A form without a δM switch returns d = 1 and dd/dH = 0.
+      `evaluate_by_differentiation` forms it from a switch-distance function.
+    - ``irreversible_magnetization(H, M, p)``: Mirr (A/m) implied by the state.
 
-    ``parameters`` names the `Parameters` fields the slope depends on (the derivative rule
-    of the time loop differentiates with respect to those only); a variant that reads
-    other fields must list them.
-
-    ``scales_with_Ms``: True if the slope has the form dM/dH = Ms·g(H, M/Ms) with g
-    depending on Ms only through α̃·Ms (and on the other parameters), as in the three
-    forms here with a δM switch. The magnetization path is then Ms times a function of
-    α̃·Ms, and the derivative rule forms ∂/∂Ms from ∂/∂α̃ instead of carrying a tangent
-    for it. Leave it False (the default) unless that holds exactly; a subclass that
-    redefines the slope and does not set it again gets False.
+    Class constants: ``parameters`` names the `Parameters` fields the slope depends on
+    (the derivative rule of the time loop differentiates with respect to those only);
+    ``scales_with_Ms`` is True only if the slope has the form dM/dH = Ms·g(H, M/Ms) with g
+    depending on Ms only through α̃·Ms, as in the three forms here with a δM switch (the
+    derivative rule then forms ∂/∂Ms from ∂/∂α̃). Both keep their defaults unless a form
+    states otherwise.
     """
 
     parameters: ClassVar[tuple[str, ...]] = ("Ms", "a", "k", "alpha", "c")
     scales_with_Ms: ClassVar[bool] = False
 
-    def __init_subclass__(cls, **kwargs):
-        super().__init_subclass__(**kwargs)
-        redefined = {"slope", "slope_from_anhysteretic", "evaluate", "distance_to_switch"}
-        if "scales_with_Ms" not in cls.__dict__ and redefined & set(cls.__dict__):
-            cls.scales_with_Ms = False
-
     @abc.abstractmethod
     def slope(self, H, M, delta, p: Parameters, pinning=True):
         """dM/dH at field H (A/m), magnetization M (A/m), field direction delta = ±1."""
 
-    def distance_to_switch(self, H, M, delta, p: Parameters):
-        """δ·(Man − M), A/m; δM = 1 (irreversible change allowed) where it is > 0."""
-        Man, _ = anhysteretic(H, M, p)
-        return delta * (Man - M)
-
+    @abc.abstractmethod
     def evaluate(self, H, M, delta, p: Parameters, pinning=True):
-        """(dM/dH, distance_to_switch, d(distance)/dH along the path M(H) of that slope):
-        dimensionless, A/m and dimensionless. Generic version by forward differentiation
-        of `distance_to_switch`; `AnhystereticForm` computes all three from one
-        evaluation of the anhysteretic."""
-        s = self.slope(H, M, delta, p, pinning)
-        d, rate = jax.jvp(lambda H, M: self.distance_to_switch(H, M, delta, p), (H, M),
-                          (jnp.ones_like(H), jnp.ones_like(M) * s))
-        return s, d, rate
+        """(dM/dH, switch distance (A/m), its rate d/dH along the path): see the class."""
 
+    @abc.abstractmethod
     def irreversible_magnetization(self, H, M, p: Parameters):
-        """Mirr (A/m) implied by the state; default Mirr = (M − c·Man)/(1 − c) (eqs 4–5)."""
-        Man, _ = anhysteretic(H, M, p)
-        reversible_only = p.c >= 1.0
-        safe = jnp.where(reversible_only, 1.0, 1.0 - p.c)
-        return jnp.where(reversible_only, M, (M - p.c * Man) / safe)
+        """Mirr (A/m) implied by the state (H, M)."""
 
 
-class AnhystereticForm(JAVariant):
+def evaluate_by_differentiation(variant: AbstractJAVariant, distance_to_switch, H, M, delta,
+                                p: Parameters, pinning=True):
+    """`AbstractJAVariant.evaluate` for a form given as its slope and a switch-distance
+    function ``distance_to_switch(H, M, delta, p)`` (A/m): the rate along the path by
+    one forward-mode derivative. A form of your own can return this from ``evaluate``."""
+    s = variant.slope(H, M, delta, p, pinning)
+    d, rate = jax.jvp(lambda H, M: distance_to_switch(H, M, delta, p), (H, M),
+                      (jnp.ones_like(H), jnp.ones_like(M) * s))
+    return s, d, rate
+
+
+def mirr_of_reversible_fraction(H, M, p: Parameters):
+    """Mirr = (M − c·Man)/(1 − c) (A/m) of M = (1 − c)·Mirr + c·Man (eqs 4–5); M itself
+    where c ≥ 1 (no irreversible part)."""
+    Man, _ = anhysteretic(H, M, p)
+    reversible_only = p.c >= 1.0
+    safe = jnp.where(reversible_only, 1.0, 1.0 - p.c)
+    return jnp.where(reversible_only, M, (M - p.c * Man) / safe)
+
+
+class AbstractAnhystereticForm(AbstractJAVariant):
     """A form whose slope is an explicit function of M, δ and the anhysteretic (Man and
-    Man' = dMan/dHe at He = H + α̃·M): implement `slope_from_anhysteretic`."""
+    Man' = dMan/dHe at He = H + α̃·M): implement `slope_from_anhysteretic` and
+    ``irreversible_magnetization``. The Langevin function is evaluated once per
+    `evaluate` (slope and switch distance together, the integrator's hot path).
+    ``has_switch`` (class constant, default True): the irreversible term obeys the δM
+    rule, with switch distance δ·(Man − M); False for a form without it."""
+
+    has_switch: ClassVar[bool] = True
 
     @abc.abstractmethod
     def slope_from_anhysteretic(self, M, delta, p: Parameters, Man, dMan, pinning=True):
@@ -110,11 +120,13 @@ class AnhystereticForm(JAVariant):
     def evaluate(self, H, M, delta, p: Parameters, pinning=True):
         Man, dMan = anhysteretic(H, M, p)
         s = self.slope_from_anhysteretic(M, delta, p, Man, dMan, pinning)
+        if not self.has_switch:  # the integrator never splits an interval
+            return s, jnp.ones_like(s), jnp.zeros_like(s)
         # d/dH of δ·(Man − M) along M(H): dMan/dH = Man'·(1 + α̃·s)
         return s, delta * (Man - M), delta * (dMan * (1.0 + p.alpha * s) - s)
 
 
-class EnergyBasedJA(AnhystereticForm):
+class EnergyBasedJA(AbstractAnhystereticForm):
     """The paper's form (eqs 1–5; Calkins, Smith & Flatau 2000), differentiated exactly.
 
     With M = (1 − c)·Mirr + c·Man(H + α̃M) (eqs 4–5) and eq 3 for dMirr/dH,
@@ -139,8 +151,11 @@ class EnergyBasedJA(AnhystereticForm):
         irreversible = _pinned_ratio(one_minus_c * D, denominator, active)
         return (irreversible + p.c * dMan) / (1.0 - p.alpha * p.c * dMan)
 
+    def irreversible_magnetization(self, H, M, p: Parameters):
+        return mirr_of_reversible_fraction(H, M, p)
 
-class ClassicJA(AnhystereticForm):
+
+class ClassicJA(AbstractAnhystereticForm):
     """The classic Jiles–Atherton form with reversible part Mrev = c·(Man − M):
 
         dM/dH = [δM·(Man − M)/(δ·k − α̃·(Man − M)) + c·Man'] / (1 + c),
@@ -170,7 +185,7 @@ class ClassicJA(AnhystereticForm):
         return (1.0 + p.c) * M - p.c * Man
 
 
-class VenkataramanJA(AnhystereticForm):
+class VenkataramanJA(AbstractAnhystereticForm):
     """The bulk ferromagnetic form of Venkataraman (PhD thesis, University of Maryland,
     1999, eq 30), which COMSOL Multiphysics and Altair Flux implement. Irreversible change
     is driven by the effective field, dMirr/dHe = δM·(Man − Mirr)/(δ·k), with
@@ -193,8 +208,11 @@ class VenkataramanJA(AnhystereticForm):
         X = jnp.where(active, D / (delta * p.k), 0.0) + p.c * dMan
         return X / (1.0 - p.alpha * X)
 
+    def irreversible_magnetization(self, H, M, p: Parameters):
+        return mirr_of_reversible_fraction(H, M, p)
 
-class PopJA(AnhystereticForm):
+
+class PopJA(AbstractAnhystereticForm):
     """The sign-continuous form attributed to Pop & Caltun (N. C. Pop and O. F. Caltun,
     Acta Phys. Pol. A 120 (2011) 491): M = Mirr + c·(Man − Mirr) (their eq 4), the
     irreversible slope of the classic model written in M, and no δM switch:
@@ -216,6 +234,8 @@ class PopJA(AnhystereticForm):
     non-finite values, which identification treats as a failed individual.
     """
 
+    has_switch: ClassVar[bool] = False
+
     def slope_from_anhysteretic(self, M, delta, p: Parameters, Man, dMan, pinning=True):
         D = Man - M
         one_minus_c = 1.0 - p.c
@@ -224,10 +244,5 @@ class PopJA(AnhystereticForm):
         irreversible = _pinned_ratio(one_minus_c * D, denominator, (p.c < 1.0) & pinning)
         return (irreversible + p.c * dMan) / (1.0 - p.alpha * p.c)
 
-    def distance_to_switch(self, H, M, delta, p: Parameters):
-        """Always 1 A/m (> 0): there is no δM switch, so the integrator never splits."""
-        return jnp.ones_like(M)
-
-    def evaluate(self, H, M, delta, p: Parameters, pinning=True):
-        s = self.slope(H, M, delta, p, pinning)
-        return s, jnp.ones_like(s), jnp.zeros_like(s)
+    def irreversible_magnetization(self, H, M, p: Parameters):
+        return mirr_of_reversible_fraction(H, M, p)

@@ -62,12 +62,6 @@ def langevin_and_slope(x):
     return jnp.where(small, Ls, Lb), jnp.where(small, dLs, dLb)
 
 
-def langevin_second(x):
-    """L''(x), elementwise (→ 0 at x = 0)."""
-    small, x_small, x_big = _split(x)
-    return jnp.where(small, _series_second(x_small), _closed(x_big)[2])
-
-
 def _langevin3(x):
     """(L, L', L'') with one exponential and one branch selection."""
     small, x_small, x_big = _split(x)

@@ -7,7 +7,3 @@ def magnetostriction(M, Ms, lambda_s):
     """λ = (3/2)·(λs/Ms²)·M² (dimensionless strain); M and Ms in A/m."""
     return 1.5 * lambda_s * (M / Ms) ** 2
 
-
-def magnetostriction_rate(M, dM_dt, Ms, lambda_s):
-    """dλ/dt = 3·(λs/Ms²)·M·dM/dt, 1/s."""
-    return 3.0 * lambda_s * (M / Ms) * (dM_dt / Ms)

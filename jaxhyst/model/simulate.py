@@ -22,24 +22,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._jax_compat import under_jit, under_vmap
+from .._typing import Array, Bool, Float, Signal
 from ..actuator import Actuator
 from ..drive import Drive
 from ..names import DEFAULT_SUBSTEPS
 from ..params import Parameters, check_parameters, is_concrete
 from ..sharding import vmap_blocked
-from .jiles_atherton import EnergyBasedJA, JAVariant, anhysteretic
+from ._batching import blocked_under_vmap
+from .jiles_atherton import AbstractJAVariant, EnergyBasedJA, anhysteretic
 from .magnetization import magnetization_path
 from .magnetostriction import magnetostriction
 from .structure import hermite_taylor_coefficients, structural_response
 
 PAPER_VARIANT = EnergyBasedJA()  # immutable Module: a safe shared default
-
-try:  # (tested with jax 0.10.2; JAX marks them unsafe: they read JAX's trace stack)
-    from jax.extend.core import unsafe_am_i_under_a_jit_DO_NOT_USE as _under_jit
-    from jax.extend.core import unsafe_am_i_under_a_vmap_DO_NOT_USE as _under_vmap
-except ImportError:  # pragma: no cover - older or newer JAX: traced calls stay inline,
-    _under_jit = _under_vmap = None  # and every trace takes the batch-aware form
-
 
 def _outside_jit(tree) -> bool:
     """Whether a call with the inputs ``tree`` runs outside any jit trace: with concrete
@@ -48,7 +44,7 @@ def _outside_jit(tree) -> bool:
     dispatched one at a time); inside a jit trace the simulation is traced inline."""
     if is_concrete(tree):
         return True
-    return _under_jit is not None and not _under_jit()
+    return under_jit() is False
 
 
 class Simulation(eqx.Module):
@@ -61,23 +57,23 @@ class Simulation(eqx.Module):
     - ``run_in``: leading samples that belong to the run-in (use ``observed``).
     """
 
-    t: jax.Array
-    H: jax.Array
-    M: jax.Array
-    Man: jax.Array
-    Mirr: jax.Array
-    lam: jax.Array
-    y: jax.Array
-    velocity: jax.Array
-    strain: jax.Array
+    t: Signal
+    H: Signal
+    M: Signal
+    Man: Signal
+    Mirr: Signal
+    lam: Signal
+    y: Signal
+    velocity: Signal
+    strain: Signal
     run_in: int = eqx.field(static=True, default=0)
 
-    def observed(self, name: str = "y") -> jax.Array:
+    def observed(self, name: str = "y") -> Float[Array, "*batch T_obs"]:
         """A signal without its run-in samples, e.g. ``sim.observed("y")``."""
         return getattr(self, name)[..., self.run_in :]
 
     @property
-    def finite(self) -> jax.Array:
+    def finite(self) -> Bool[Array, "*batch"]:
         """True where every signal is finite (False flags a diverged parameter set)."""
         return jnp.isfinite(self.M).all(-1) & jnp.isfinite(self.y).all(-1)
 
@@ -86,7 +82,7 @@ def simulate_unchecked(
     params: Parameters,
     actuator: Actuator,
     drive: Drive,
-    variant: JAVariant = PAPER_VARIANT,
+    variant: AbstractJAVariant = PAPER_VARIANT,
     substeps: int = DEFAULT_SUBSTEPS,
 ) -> Simulation:
     """`simulate` without input validation: the pure function for jit/vmap/grad inside
@@ -107,8 +103,9 @@ def _simulate(params, actuator, drive, variant, substeps) -> Simulation:
     S = _static_substeps(substeps)
     M_sub, k_sub = magnetization_path(params, drive.H, variant=variant, substeps=S)
     args = (variant, params, actuator.Ar, drive.t, drive.H, M_sub, k_sub)
-    if _under_vmap is None or _under_vmap():  # its batch rule in blocks (`_signals`)
-        M, Man, Mirr, lam, y, v = _signals(*args, uniform=drive.uniform, substeps=S)
+    if under_vmap():  # its batch rule in blocks (`_batching.blocked_under_vmap`)
+        M, Man, Mirr, lam, y, v = blocked_under_vmap(_after_the_loop, uniform=drive.uniform,
+                                                      S=S)(*args)
     else:  # (the same without the wrappers: less to trace for grad)
         M, Man, Mirr, lam, y, v = _after_the_loop(*args, drive.uniform, S)
     return Simulation(t=drive.t, H=drive.H, M=M, Man=Man, Mirr=Mirr, lam=lam, y=y,
@@ -142,74 +139,6 @@ def _after_the_loop(variant, p, Ar, t, H, M_sub, k_sub, uniform: bool, S: int):
             jnp.concatenate([zero, x[:, 0]]), jnp.concatenate([zero, x[:, 1]]))
 
 
-def _splice(leaves, positions, values):
-    """``leaves`` with the entries at ``positions`` replaced by ``values``."""
-    leaves = list(leaves)
-    for i, value in zip(positions, values, strict=True):
-        leaves[i] = value
-    return leaves
-
-
-_IN_BLOCKS: dict = {}
-
-
-def _after_the_loop_in_blocks(uniform: bool, S: int):
-    """`_after_the_loop` whose ``jax.vmap`` runs in blocks (`vmap_blocked`: a batch of hundreds
-    on the CPU, 64 members at a time). Vectorized over a whole large population its
-    (P, J, 4) forcing and the recurrence's copies of it no longer fit the caches (the
-    loop itself costs the same either way). Other batches, and other backends, run as
-    ``jax.vmap`` would."""
-    if (uniform, S) not in _IN_BLOCKS:
-
-        @jax.custom_batching.custom_vmap
-        def single(*args):
-            return _after_the_loop(*args, uniform, S)
-
-        @single.def_vmap
-        def batch(axis_size, in_batched, *args):
-            leaves, tree = jax.tree.flatten(args)
-            flags = jax.tree.leaves(in_batched)
-            batched = [i for i, b in enumerate(flags) if b]
-            if not batched:  # (jvp of the rule asks this too)
-                out = _after_the_loop(*args, uniform, S)
-                return out, (False,) * len(out)
-
-            def one(*values):
-                args = jax.tree.unflatten(tree, _splice(leaves, batched, values))
-                return _after_the_loop(*args, uniform, S)
-
-            out = vmap_blocked(one, axis_size)(*[leaves[i] for i in batched])
-            return out, (True,) * len(out)
-
-        _IN_BLOCKS[uniform, S] = single
-    return _IN_BLOCKS[uniform, S]
-
-
-@eqx.filter_custom_jvp
-def _signals(variant, p, Ar, t, H, M_sub, k_sub, *, uniform: bool, substeps: int):
-    """`_after_the_loop`, run in blocks under a large ``jax.vmap``
-    (`_after_the_loop_in_blocks`); its derivatives are `_after_the_loop`'s own (JAX does
-    not differentiate a custom batching rule in reverse mode, so the rule stays out of
-    every derivative)."""
-    return _after_the_loop_in_blocks(uniform, substeps)(variant, p, Ar, t, H, M_sub, k_sub)
-
-
-@_signals.def_jvp
-def _signals_jvp(primals, tangents, *, uniform, substeps):
-    leaves, tree = jax.tree.flatten(primals, is_leaf=lambda x: x is None)
-    dots = jax.tree.leaves(tangents, is_leaf=lambda x: x is None)  # (None: no tangent)
-    moving = [i for i, d in enumerate(dots) if d is not None]
-    if not moving:
-        out = _signals(*primals, uniform=uniform, substeps=substeps)
-        return out, (None,) * len(out)
-
-    def signals(*values):
-        args = jax.tree.unflatten(tree, _splice(leaves, moving, values))
-        return _after_the_loop(*args, uniform, substeps)
-
-    return jax.jvp(signals, [leaves[i] for i in moving], [dots[i] for i in moving])
-
-
 def _static_substeps(substeps) -> int:
     """``substeps`` as a Python int: it is the loop's structure, not data."""
     if isinstance(substeps, jax.core.Tracer):
@@ -230,8 +159,9 @@ def _check_inputs(params, actuator, drive, variant, substeps) -> None:
         raise TypeError(
             f"drive must be jaxhyst.Drive (e.g. Drive(t, H)); got {type(drive).__name__}."
         )
-    if not isinstance(variant, JAVariant):
-        raise TypeError(f"variant must be a JAVariant (e.g. EnergyBasedJA()); got {variant!r}.")
+    if not isinstance(variant, AbstractJAVariant):
+        raise TypeError(f"variant must be a Jiles–Atherton form (an AbstractJAVariant, e.g. "
+                        f"EnergyBasedJA()); got {variant!r}.")
     if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
         raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
     check_parameters(params)
@@ -258,7 +188,7 @@ def simulate(
     params: Parameters,
     actuator: Actuator,
     drive: Drive,
-    variant: JAVariant = PAPER_VARIANT,
+    variant: AbstractJAVariant = PAPER_VARIANT,
     substeps: int = DEFAULT_SUBSTEPS,
 ) -> Simulation:
     """Simulate the actuator: drive H(t) → M, Man, Mirr → λ → y, ε.
@@ -305,13 +235,13 @@ def simulate_batch(
     params: Parameters,
     actuator: Actuator,
     drive: Drive,
-    variant: JAVariant = PAPER_VARIANT,
+    variant: AbstractJAVariant = PAPER_VARIANT,
     substeps: int = DEFAULT_SUBSTEPS,
 ) -> Simulation:
     """`simulate` for a batch of parameter sets (leaves of shape (P,)) in one vmapped,
     jitted call: signals of shape (P, T), evaluated as the GA evaluates populations: on the
     CPU a batch of hundreds runs in blocks of 64 members (`jaxhyst.sharding.vmap_blocked`:
-    the same values to round-off, ~1.3× faster at P = 1000)."""
+    the same values to round-off; timings in benchmarks/RESULTS.md)."""
     _check_inputs(params, actuator, drive, variant, substeps)
     if jnp.ndim(params.Ms) != 1:
         raise ValueError(

@@ -21,6 +21,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from .._typing import Array, ArrayLike, Complex, Float
 from ..actuator import Actuator
 from ..params import Parameters
 
@@ -184,7 +185,8 @@ def structural_response(p: Parameters, h, forcing, uniform: bool):
     return xs
 
 
-def frequency_response(p: Parameters, actuator: Actuator, frequency):
+def frequency_response(p: Parameters, actuator: Actuator,
+                       frequency: Float[ArrayLike, "*shape"]) -> Complex[Array, "*shape"]:
     """G(jω) = ε/λ = (Ar·E/lr) / (Mz·(jω)² + Cz·jω + Kz)  (eq 13), complex, dimensionless.
 
     ``frequency`` in Hz (any shape). ``jnp.abs`` gives A(ω) and ``jnp.angle`` the phase φ

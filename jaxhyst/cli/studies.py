@@ -17,25 +17,28 @@ error of the seven identifiable combinations, which is what the data can recover
 
 from __future__ import annotations
 
-import sys
 import time
 
 import jax
 import numpy as np
 
-from .actuator import ACTUATOR1, ACTUATOR2
-from .drive import sinusoidal_current, sinusoidal_field
-from .identify.hybrid import GASettings, run_hybrid
-from .identify.problem import Problem, synthetic_problem
-from .identify.space import ParameterSpace
-from .params import NAMES, TABLE1_BOUNDS, TABLE1_TRUE, TABLE3, Bounds, Parameters
+from jaxhyst.actuator import ACTUATOR1, ACTUATOR2
+from jaxhyst.drive import sinusoidal_current, sinusoidal_field
+from jaxhyst.identify import ParameterSpace, Problem, hybrid_method, run_hybrid, synthetic_problem
+from jaxhyst.params import NAMES, TABLE1_BOUNDS, TABLE1_TRUE, TABLE3, Bounds, Parameters
+from jaxhyst.progress import NoProgressMeter, TextProgressMeter
 
 METHODS = ("GATR1", "GALM1", "GATR2", "GALM2")
 
-#: ``--quick``: a smaller GA on a coarser record (measured: ~50 s of CPU, mostly
-#: compiling; wall time grows with the load of the machine); the paper's settings
-#: otherwise.
-QUICK = GASettings(q1=60, q2=20, T1=3, T2=40, T3=20, local_steps=4)
+#: ``--quick``: a smaller GA on a coarser record (a minute or so, mostly compiling); the
+#: paper's settings otherwise.
+QUICK = {"q1": 60, "q2": 20, "T1": 3, "T2": 40, "T3": 20, "local_steps": 4}
+
+
+def _meter(progress: bool, label: str, total: int):
+    """The study's own meter (a line per run) and its state."""
+    meter = TextProgressMeter(every=1, interval=0.0) if progress else NoProgressMeter()
+    return meter, meter.init(label, total)
 
 
 def combination_errors(params, truth=TABLE1_TRUE) -> float:
@@ -51,15 +54,16 @@ def combination_errors(params, truth=TABLE1_TRUE) -> float:
 
 
 def table1_study(quick: bool = False, methods=METHODS, seeds=(0,), progress: bool = False,
-                 settings: GASettings | None = None) -> dict:
+                 settings: dict | None = None) -> dict:
     """Run the study; returns ``{"settings", "runs": [...], "markdown"}`` where each run has
     the method, seed, identified parameters, cost, combination error, wall time and GA
     history (for the figures)."""
     spp = 50 if quick else 200
-    settings = settings or (QUICK if quick else GASettings())
+    settings = settings or (QUICK if quick else {})
     drive = sinusoidal_current(100.0, 0.77, 1.53, ACTUATOR1, samples_per_period=spp)
     problem = synthetic_problem(TABLE1_TRUE, drive, ACTUATOR1, TABLE1_BOUNDS)
     runs = []
+    meter, state = _meter(progress, "table1", len(methods) * len(seeds))
     for method in methods:
         for seed in seeds:
             t0 = time.perf_counter()
@@ -72,10 +76,10 @@ def table1_study(quick: bool = False, methods=METHODS, seeds=(0,), progress: boo
                          "wall_time_s": wall, "evaluations": res.extra["evaluations"],
                          "local_steps": res.extra["local_steps"],
                          "history": res.extra["history"]})
-            if progress:
-                print(f"[table1] {method} seed {seed}: cost {res.cost:.3e}, combinations "
-                      f"{runs[-1]['combination_error']:.1e}, {wall:.1f} s", file=sys.stderr,
-                      flush=True)
+            state = meter.step(state, len(runs), f"{method} seed {seed}: cost {res.cost:.3e}, "
+                               f"combinations {runs[-1]['combination_error']:.1e}, "
+                               f"{wall:.1f} s")
+    meter.close(state, f"{len(runs)} runs")
     truth = TABLE1_TRUE.to_dict()
     head = "| θ | true | " + " | ".join(f"{r['method']} s{r['seed']}" for r in runs) + " |"
     lines = [head, "|" + "---|" * (len(runs) + 2)]
@@ -88,7 +92,8 @@ def table1_study(quick: bool = False, methods=METHODS, seeds=(0,), progress: boo
                             ("max abs error (m)", "max_abs_error_m", "{:.2e}"),
                             ("wall time (s)", "wall_time_s", "{:.1f}")):
         lines.append(f"| {label} | | " + " | ".join(fmt.format(r[key]) for r in runs) + " |")
-    return {"settings": settings.__dict__, "samples_per_period": spp, "runs": runs,
+    return {"settings": hybrid_method("GATR1", settings).settings(),
+            "samples_per_period": spp, "runs": runs,
             "markdown": "\n".join(lines), "problem": problem}
 
 
@@ -118,7 +123,8 @@ TABLE2_CURRENT = (2.0, 1.2, 0.0)  # frequency (Hz), amplitude (A), offset (A)
 NOISE = 1e-3
 
 #: ``--quick`` for the experiments: a small GA on 40 samples per period.
-QUICK_EXPERIMENT = GASettings(q1=40, q2=12, T1=2, T2=15, T3=20, local_steps=4, check_steps=200)
+QUICK_EXPERIMENT = {"q1": 40, "q2": 12, "T1": 2, "T2": 15, "T3": 20, "local_steps": 4,
+                    "check_steps": 200}
 
 
 def box_around(truth: Parameters, rel: float = 0.5) -> Bounds:
@@ -159,7 +165,7 @@ def combination_check(report, truth: Parameters) -> dict:
 
 
 def _experiment(label, truth, actuator, drive, noise, seed, settings, progress):
-    from .fit import run_hybrid as run_with_report
+    from jaxhyst.fit import run_hybrid as run_with_report
 
     problem = noisy_strain_problem(truth, actuator, drive, noise, jax.random.PRNGKey(seed))
     res = run_with_report(problem, "GATR1", seed=seed, settings=settings,
@@ -169,10 +175,12 @@ def _experiment(label, truth, actuator, drive, noise, seed, settings, progress):
            "sigma": float(problem.sigma), "rms_error": res.rms_error,
            "combinations": combination_check(res.report, truth) if res.report else None,
            "poorly_determined": res.report.poorly_determined() if res.report else None}
-    if progress:
-        print(f"[{label}] GATR1 seed {seed}: χ² {res.cost:.1f} for {row['n_data']} samples, "
-              f"{res.result}, {res.wall_time:.1f} s", file=sys.stderr, flush=True)
     return row, problem
+
+
+def _row_line(row) -> str:
+    return (f"{row['label']}: GATR1 seed {row['seed']}: χ² {row['cost']:.1f} for "
+            f"{row['n_data']} samples, {row['outcome']}, {row['wall_time_s']:.1f} s")
 
 
 def _experiment_markdown(rows) -> str:
@@ -210,7 +218,7 @@ def undetermined(row, max_rel_se: float = 0.5) -> list[str]:
 
 def table3_study(quick: bool = False, frequencies=TABLE3_FREQUENCIES, seed: int = 0,
                  noise: float = NOISE, progress: bool = False,
-                 settings: GASettings | None = None) -> dict:
+                 settings: dict | None = None) -> dict:
     """Table 3 (§5.2): Actuator2 under Hb = 16 kA/m and H_AC = 8·sin(2πft) kA/m at each
     frequency, simulated at that column of Table 3, strain plus noise σ = noise·max|ε|,
     identified by GATR1 with all ten parameters free in a ±50 % box. Returns the runs
@@ -219,8 +227,9 @@ def table3_study(quick: bool = False, frequencies=TABLE3_FREQUENCIES, seed: int 
     response of Figs 7 and 8. Every frequency's problem has the same structure, so the
     GA compiles once."""
     spp = 40 if quick else 200
-    settings = settings or (QUICK_EXPERIMENT if quick else GASettings())
+    settings = settings or (QUICK_EXPERIMENT if quick else {})
     rows, loops = [], {}
+    meter, state = _meter(progress, "table3", len(frequencies))
     for f in frequencies:
         if f not in TABLE3:
             raise ValueError(f"Table 3 has frequencies {sorted(TABLE3)} Hz; got {f}.")
@@ -230,18 +239,20 @@ def table3_study(quick: bool = False, frequencies=TABLE3_FREQUENCIES, seed: int 
                                    settings, progress)
         row["frequency_hz"] = f
         rows.append(row)
-        from .model.simulate import simulate
+        state = meter.step(state, len(rows), _row_line(row))
+        from jaxhyst.model.simulate import simulate
 
         sim = simulate(TABLE3[f], ACTUATOR2, drive)
         loops[f] = {k: np.asarray(sim.observed(k)).tolist() for k in ("H", "lam", "strain")}
         loops[f]["data_strain"] = np.asarray(problem.data).tolist()
-    return {"settings": settings.__dict__, "samples_per_period": spp, "noise": noise,
-            "runs": rows, "loops": loops,
+    meter.close(state, f"{len(rows)} frequencies")
+    return {"settings": hybrid_method("GATR1", settings).settings(),
+            "samples_per_period": spp, "noise": noise, "runs": rows, "loops": loops,
             "markdown": _experiment_markdown(rows)}
 
 
 def table2_study(quick: bool = False, seeds=(0, 1, 2), noise: float = NOISE,
-                 progress: bool = False, settings: GASettings | None = None) -> dict:
+                 progress: bool = False, settings: dict | None = None) -> dict:
     """Table 2 (§5.1): the quasi-static Actuator1 (Hb = 0, 2 Hz, `TABLE2_CURRENT`),
     strain simulated at `TABLE2_TRUE` plus noise, identified by GATR1 three times (one
     noise realisation and GA seed per run, as the paper's repeated runs). Shows what the
@@ -250,7 +261,8 @@ def table2_study(quick: bool = False, seeds=(0, 1, 2), noise: float = NOISE,
     the cost is flat to the noise, so the final convergence check typically ends at its
     step limit (outcome ``max_steps_reached``) with χ² already at the noise level."""
     spp = 40 if quick else 200
-    settings = settings or (QUICK_EXPERIMENT if quick else GASettings())
+    settings = settings or (QUICK_EXPERIMENT if quick else {})
+    meter, state = _meter(progress, "table2", len(seeds))
     f, amp, offset = TABLE2_CURRENT
     drive = sinusoidal_current(f, amp, offset, ACTUATOR1, samples_per_period=spp)
     rows = []
@@ -258,10 +270,12 @@ def table2_study(quick: bool = False, seeds=(0, 1, 2), noise: float = NOISE,
         row, _ = _experiment(f"run {seed}", TABLE2_TRUE, ACTUATOR1, drive, noise, seed,
                              settings, progress)
         rows.append(row)
+        state = meter.step(state, len(rows), _row_line(row))
+    meter.close(state, f"{len(rows)} runs")
     spread = {}
     for n in NAMES:
         v = np.array([r["params"][n] for r in rows])
         spread[n] = float(np.ptp(v) / abs(np.mean(v)))
-    return {"settings": settings.__dict__, "samples_per_period": spp, "noise": noise,
-            "runs": rows, "relative_spread": spread,
+    return {"settings": hybrid_method("GATR1", settings).settings(),
+            "samples_per_period": spp, "noise": noise, "runs": rows, "relative_spread": spread,
             "markdown": _experiment_markdown(rows)}

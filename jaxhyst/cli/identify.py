@@ -1,0 +1,257 @@
+"""``jaxhyst identify``: identify parameters from a data file."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from jaxhyst._files import writes_in_place
+from jaxhyst.names import DEFAULT_SUBSTEPS, MAGNETIC_OUTPUT_NAMES
+
+from .options import COUNT, EXIT_HELP, HYBRID, LOCAL, POSITIVE_INT, UNITS_HELP, VARIANTS
+from .spec import (
+    CLIError,
+    actuator_arg,
+    bounds_arg,
+    build_problem,
+    check_outputs,
+    fixed_arg,
+    note,
+    parameters_arg,
+    print_result,
+    resolve_bounds,
+    warn,
+)
+
+
+def add_parser(sub) -> None:
+    """Register the command and its options on the subparsers ``sub``."""
+    parser = sub.add_parser(
+        "identify", help="identify parameters from a measured loop",
+        description="Identify the free parameters from a data file (CSV/TSV; columns t, H "
+        "or I, and the observed signal y, strain, lambda, M or B; a 'loop' column separates "
+        "loops; units in the header as 'y [um]' or 'y_um'). " + UNITS_HELP,
+        epilog=EXIT_HELP)  # fmt: skip
+    parser.add_argument("data", help="data file")
+    parser.add_argument("--output", choices=("y", "strain", "lambda", "M", "B"),
+                        help="observed column (needed when the file has several)")
+    parser.add_argument("--loop", type=COUNT, help="which loop of a multi-loop file")
+    parser.add_argument("--joint", action="store_true", help="fit all loops of the file as one "
+                        "problem (parameters shared unless listed in --per-loop)")
+    parser.add_argument("--per-loop", help="with --joint: parameters free per loop, e.g. "
+                        "'a,k,c'")
+    parser.add_argument("--variant", choices=VARIANTS, default="energy",
+                        help="Jiles–Atherton form (energy: the paper's)")
+    parser.add_argument("--columns", help="column names for a file without a header, "
+                        "e.g. 't,H,y [um]'")
+    parser.add_argument("--actuator", default="actuator1",
+                        help="actuator1, actuator2 or a JSON file {Ar, lr, n, Hb}")
+    parser.add_argument("--bounds", help="search box: table1, or a JSON file {name: [lower, "
+                        "upper]} (SI) naming only the parameters it changes. Default: for M or "
+                        "B data a box derived from the loops (field and magnetization "
+                        "amplitudes, coercive field; printed), else the paper's Table 1 box")
+    parser.add_argument("--fix", action="append", help="hold parameters fixed: 'Ms=7.65e5' or "
+                        "'Ms,lambda_s' with --params; repeatable")
+    parser.add_argument("--params", help="known values for --fix without a value")
+    parser.add_argument("--method", default="auto", choices=("auto",) + HYBRID + LOCAL,
+                        help="a hybrid GA (paper §3.4) or a local solver (multi-start); auto: "
+                        "GATR1 for y/strain/lambda data, lm for M or B loops")
+    parser.add_argument("--start", help="local solvers: start from the parameters of an "
+                        "earlier result JSON (identify --out)")
+    parser.add_argument("--starts", type=POSITIVE_INT, default=8,
+                        help="local solvers: random starts, solved in one vmapped batch (1: "
+                        "one start at the centre of the box)")
+    parser.add_argument("--max-steps", type=POSITIVE_INT,
+                        help="local solver iterations (hybrids: T3)")
+    parser.add_argument("--generations", type=POSITIVE_INT, help="hybrids: FCGA generations T2 "
+                        "(paper 295)")
+    parser.add_argument("--population", type=POSITIVE_INT,
+                        help="hybrids: BCGA population q1 (paper 120; q2 = q1/4)")
+    parser.add_argument("--seed", type=COUNT, default=0,
+                        help="random seed (integer >= 0): GA, random starts")
+    parser.add_argument("--checkpoint", help="hybrids: checkpoint file (.npz), written "
+                        "atomically every --checkpoint-every generations and on Ctrl-C")
+    parser.add_argument("--checkpoint-every", type=POSITIVE_INT, default=10,
+                        help="hybrids: generations between checkpoints")
+    parser.add_argument("--resume", action="store_true", help="continue from --checkpoint")
+    parser.add_argument("--run-in-periods", type=COUNT, default=1,
+                        help="copies of the record simulated before it (transient)")
+    parser.add_argument("--substeps", type=POSITIVE_INT, default=DEFAULT_SUBSTEPS,
+                        help="RK4 substeps per sample (a warning says when the record is too "
+                        "coarse for it)")
+    parser.add_argument("--progress", type=COUNT, default=10,
+                        help="progress on stderr: a line every N generations of a hybrid, every "
+                        "2 s of a local solve (0: quiet)")
+    parser.add_argument("--out", help="write the result (JSON, names and units) here")
+    parser.add_argument("--save-model", metavar="FILE",
+                        help="write the identified model (parameters, form, actuator, "
+                        "substeps) here, for jaxhyst.load_model")
+    parser.add_argument("--png", help="measured vs fitted loop with the error (and, for "
+                        "hybrids, <name>_history.png)")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    parser.set_defaults(func=run)
+
+
+def _method(args, problem) -> str:
+    """--method auto: GATR1 (the paper) for actuator outputs, multi-start LM for M/B."""
+    if args.method != "auto":
+        return args.method
+    return "lm" if problem.output in MAGNETIC_OUTPUT_NAMES else "GATR1"
+
+
+def _read_start(args):
+    """The parameters of an earlier result (--start), or None."""
+    from jaxhyst.io import parameters_from_json, read_json
+
+    if not args.start:
+        return None
+    return parameters_from_json(read_json(args.start), f"parameters in --start {args.start}")
+
+
+def _start_params(args, p, problem):
+    """The parameters ``p`` of --start for ``problem`` (per loop for a joint one)."""
+    import jax.numpy as jnp
+
+    from jaxhyst.identify import JointProblem
+
+    if isinstance(problem, JointProblem):  # per-loop leaves
+        L = problem.n_loops
+        p = type(p).from_array(jnp.broadcast_to(jnp.atleast_2d(p.to_array()),
+                                                (L, p.to_array().shape[-1])))
+    elif p.to_array().ndim != 1:
+        raise CLIError(f"--start {args.start}: a joint (per-loop) result cannot start a "
+                       "single-loop fit.")
+    return p
+
+
+def run(args) -> int:
+    import numpy as np
+
+    import jaxhyst as jh
+    from jaxhyst._interrupt import stop_requested
+    from jaxhyst.io import bounds_to_json, read_loops, write_json
+    from jaxhyst.progress import TextProgressMeter
+
+    check_outputs(args)
+    known = parameters_arg(args.params) if args.params else None
+    given = bounds_arg(args.bounds)
+    actuator = actuator_arg(args.actuator)
+    spec = {"data": os.path.abspath(args.data), "columns": args.columns, "loop": args.loop,
+            "output": args.output, "actuator": actuator.to_dict(),
+            "fixed": fixed_arg(args.fix, known),
+            "run_in_periods": args.run_in_periods, "substeps": args.substeps,
+            "variant": args.variant, "joint": args.joint,
+            "per_loop": [n.strip() for n in (args.per_loop or "").split(",") if n.strip()]}
+    if spec["per_loop"] and not args.joint:
+        raise CLIError("--per-loop needs --joint (several loops fitted together).")
+    if args.method in HYBRID and args.start:
+        raise CLIError("--start applies to the local solvers (e.g. --method lm); a hybrid GA "
+                       "searches the whole box.")
+    start = _read_start(args)
+    loops = read_loops(spec["data"], spec["columns"])
+    bounds, where = resolve_bounds(spec, given, loops)
+    spec["bounds"] = bounds_to_json(bounds)
+    problem = build_problem(spec, loops)  # (its warnings: one line each, see main)
+    method = _method(args, problem)
+    if args.start and method in HYBRID:  # (only with --method auto) a start means a local solve
+        method = "lm"
+    if method not in HYBRID and (args.checkpoint or args.resume):
+        raise CLIError(f"--checkpoint/--resume apply to the hybrid GAs; --method {method} is a "
+                       "local solve (not checkpointed: rerun it).")
+    if where and args.progress:  # (after every check of the input: errors stay one line)
+        note("identify", where)
+    n = problem.space.n_free
+    if method in HYBRID:
+        settings = {k: v for k, v in (("T2", args.generations), ("q1", args.population),
+                                      ("T3", args.max_steps)) if v is not None}
+        if args.population is not None:
+            settings["q2"] = max(4, args.population // 4)
+        if args.checkpoint is None and args.resume:
+            raise CLIError("--resume needs --checkpoint FILE.")
+        meter = TextProgressMeter(every=args.progress) if args.progress else False
+        result = jh.run_hybrid(problem, method, seed=args.seed, settings=settings,
+                               progress=meter, checkpoint=args.checkpoint,
+                               checkpoint_every=args.checkpoint_every, resume=args.resume)
+    else:
+        meter = TextProgressMeter(every=0, interval=2.0) if args.progress else False
+        if args.start or args.starts <= 1:  # one start: an earlier result, or the box centre
+            start = _start_params(args, start, problem) if args.start else np.full(n, 0.5)
+            if args.progress:
+                note(method, "one start " + (f"from {args.start}" if args.start
+                                             else "at the centre of the box"))
+            result = jh.solve(problem, start, solver=method, max_steps=args.max_steps or 200,
+                              progress=meter)
+        else:
+            starts = np.random.default_rng(args.seed).uniform(0.0, 1.0, (args.starts, n))
+            if args.progress:
+                note(method, f"{len(starts)} random starts in one vmapped batch")
+            result = jh.multistart(problem, starts, solver=method,
+                                   max_steps=args.max_steps or 200, progress=meter)
+    if stop_requested() and result.result != "interrupted":  # Ctrl-C during a local solve
+        result = result.with_outcome("interrupted")
+    d = result.to_dict()
+    d["problem"] = {**spec, "data": _portable_path(spec["data"], args.out)}
+    if "history" in result.extra:
+        d["history"] = result.extra["history"]
+    if args.png:
+        _identify_figure(args, problem, result, has_t=loops[0].t is not None)
+    if args.out:
+        write_json(args.out, d)
+    if args.save_model:
+        jh.save_model(args.save_model, problem.model(result.params), data=spec["data"],
+                      outcome=result.result, rms_error=result.rms_error,
+                      output=result.output)
+    wrote = [f for f in (args.out, args.save_model) if f]
+    text = str(result) + "".join(f"\n  wrote {f}" for f in wrote)
+    print_result(args, d, text)
+    for w in result.warnings:
+        warn(args, w)
+    return _exit_status(result)
+
+
+def _portable_path(path: str, out: str | None) -> str:
+    """``path`` relative to the directory of the result file ``out`` (so that a result
+    moved together with its data still finds them); absolute when on another drive."""
+    base = os.path.dirname(os.path.abspath(out)) if out else os.getcwd()
+    try:
+        return os.path.relpath(path, base)
+    except ValueError:
+        return path
+
+
+def _identify_figure(args, problem, result, has_t: bool) -> None:
+    import numpy as np
+
+    from jaxhyst.plots import plot_fit, plot_history
+
+    flags = (" — at bound: " + ", ".join(result.at_bound)) if result.at_bound else ""
+    if args.joint:
+        pred = np.asarray(problem.predict_loops(result.params))
+        mask = np.asarray(problem.mask)
+        H = np.asarray(problem.drive.H)[:, problem.drive.run_in:]
+        plot_fit([H[i][mask[i]] for i in range(problem.n_loops)],
+                 [np.asarray(problem.padded)[i][mask[i]] for i in range(problem.n_loops)],
+                 [pred[i][mask[i]] for i in range(problem.n_loops)], problem.output, args.png,
+                 title=f"{result.solver}: {problem.n_loops} loops fitted jointly{flags}")
+        return
+    pred = np.asarray(problem.predict(result.params))
+    plot_fit(problem.drive.observed(problem.drive.H), problem.data, pred, problem.output,
+             args.png, t=problem.drive.observed(problem.drive.t) if has_t else None,
+             title=f"{result.solver}: measured and fitted ({os.path.basename(args.data)})"
+             + flags)
+    # (the history beside the figure; not beside a device or FIFO: /dev/null_history.png)
+    if result.extra.get("history") and not writes_in_place(args.png):
+        hist_png = str(Path(args.png).with_name(Path(args.png).stem + "_history.png"))
+        plot_history(result.extra["history"], problem.space.names, problem.space.lower,
+                     problem.space.upper, hist_png, title=result.solver + flags)
+
+
+def _exit_status(result) -> int:
+    """0 for a converged fit, 130 for an interrupted run, 3 for one that stopped short,
+    failed (max steps, non-finite cost, solver failure) or ended far from its data, 4 for
+    a converged fit with a parameter at a bound."""
+    if result.result == "interrupted":
+        return 130
+    if not result.success or result.far_from_data:
+        return 3
+    return 4 if result.at_bound else 0

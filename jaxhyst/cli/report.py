@@ -1,0 +1,63 @@
+"""``jaxhyst report``: what the data of an identify result determine."""
+
+from __future__ import annotations
+
+import os
+
+from .options import POSITIVE, POSITIVE_INT
+from .spec import CLIError, build_problem, check_outputs, print_result
+
+
+def add_parser(sub) -> None:
+    """Register the command and its options on the subparsers ``sub``."""
+    parser = sub.add_parser(
+        "report", help="identifiability of an identify result",
+        description="Singular values, null directions, standard errors, identifiable "
+        "combinations and (optionally) profile likelihoods of a result written by "
+        "'jaxhyst identify --out'.")  # fmt: skip
+    parser.add_argument("result", help="result JSON from identify --out")
+    parser.add_argument("--profile", action="append", help="profile likelihood of this "
+                        "parameter (repeatable)")
+    parser.add_argument("--profile-points", type=POSITIVE_INT, default=21,
+                        help="grid points of each profile")
+    parser.add_argument("--max-rel-se", type=POSITIVE, default=0.5,
+                        help="relative standard error above which a parameter is poorly "
+                        "determined")
+    parser.add_argument("--png", help="singular values and correlation matrix figure")
+    parser.add_argument("--json", action="store_true",
+                       help="print the result as one JSON object on stdout")
+    parser.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from jaxhyst.analysis import identifiability, profile_likelihood
+    from jaxhyst.io import parameters_from_json, read_json
+
+    check_outputs(args)
+
+    saved = read_json(args.result)
+    if "problem" not in saved:
+        raise CLIError(f"{args.result} is not a jaxhyst identify result (no 'problem' entry).")
+    spec = dict(saved["problem"])
+    if not os.path.isabs(spec["data"]):  # stored relative to the result file
+        spec["data"] = os.path.join(os.path.dirname(os.path.abspath(args.result)),
+                                    spec["data"])
+    problem = build_problem(spec)
+    params = parameters_from_json(saved, f"parameters in {args.result}")
+    rep = identifiability(problem, params, max_rel_se=args.max_rel_se)
+    summary = {"identifiability": rep.to_dict(), "suggest_fixed": list(rep.suggest_fixed())}
+    text = [str(rep), f"  to make the rest identifiable and determined to "
+                      f"{100 * rep.max_rel_se:g} %: fix {', '.join(rep.suggest_fixed()) or '—'}"]
+    profiles = []
+    for name in args.profile or []:
+        prof = profile_likelihood(problem, params, name, n=args.profile_points)
+        profiles.append(prof.to_dict())
+        text.append(str(prof))
+    summary["profiles"] = profiles
+    if args.png:
+        from jaxhyst.plots import plot_identifiability
+
+        plot_identifiability(rep, args.png, title=os.path.basename(args.result))
+        text.append(f"  wrote {args.png}")
+    print_result(args, summary, "\n".join(text))
+    return 0

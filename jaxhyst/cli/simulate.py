@@ -1,0 +1,108 @@
+"""``jaxhyst simulate``: simulate an actuator and write its loop (CSV, PNG)."""
+
+from __future__ import annotations
+
+from jaxhyst.names import DEFAULT_SUBSTEPS
+
+from .options import FINITE, POSITIVE, POSITIVE_INT, UNITS_HELP, VARIANTS
+from .spec import (
+    actuator_arg,
+    check_outputs,
+    loop_field,
+    parameters_arg,
+    print_result,
+    variant_from_name,
+    warn,
+)
+
+
+def add_parser(sub) -> None:
+    """Register the command and its options on the subparsers ``sub``."""
+    parser = sub.add_parser(
+        "simulate", help="simulate an actuator and write its loop (CSV, PNG)",
+        description="Simulate an actuator. The drive is a current I = offset + amplitude·"
+        "sin(2πft) (A) by default, a field with --field-amplitude (A/m), or a measured "
+        "record with --drive FILE (columns t and H or I). Starts demagnetized, ramps to the "
+        "drive, discards one run-in period. " + UNITS_HELP)  # fmt: skip
+    parser.add_argument("--preset", choices=("table1",), default="table1",
+                        help="parameters when --params is not given")
+    parser.add_argument("--params", help="table1, table3:<Hz> or a JSON file {name: value} "
+                        "(a result JSON also works)")
+    parser.add_argument("--actuator", default="actuator1",
+                        help="actuator1, actuator2 or a JSON file {Ar, lr, n, Hb}")
+    parser.add_argument("--frequency", type=POSITIVE, default=100.0, help="drive frequency, Hz")
+    parser.add_argument("--amplitude", type=FINITE, default=0.77, help="current amplitude, A")
+    parser.add_argument("--offset", type=FINITE, default=1.53, help="current offset (bias), A")
+    parser.add_argument("--field-amplitude", type=FINITE, help="field amplitude, A/m (instead "
+                        "of a current)")
+    parser.add_argument("--field-offset", type=FINITE, default=0.0, help="field offset, A/m")
+    parser.add_argument("--drive", help="CSV/TSV with t and H (or I) columns")
+    parser.add_argument("--columns", help="column names for a file without a header")
+    parser.add_argument("--periods", type=POSITIVE, default=1.0, help="observed periods")
+    parser.add_argument("--samples-per-period", type=POSITIVE_INT, default=200,
+                        help="samples per drive period")
+    parser.add_argument("--substeps", type=POSITIVE_INT, default=DEFAULT_SUBSTEPS,
+                        help="RK4 substeps per sample")
+    parser.add_argument("--variant", choices=VARIANTS, default="energy",
+                        help="Jiles–Atherton form (energy: the paper's)")
+    parser.add_argument("--csv", help="write the signals here (SI units in the header)")
+    parser.add_argument("--png", help="write a figure here (needs matplotlib)")
+    parser.add_argument("--json", action="store_true", help="print a JSON summary")
+    parser.set_defaults(func=run)
+
+
+def _drive_from_args(args, actuator):
+    import jaxhyst as jh
+    from jaxhyst.io import read_loops
+
+    if args.drive:
+        loop = read_loops(args.drive, args.columns)[0]
+        return (jh.drive_from_record(loop.t, loop_field(loop, actuator, args.drive)),
+                f"drive from {args.drive}")
+    if args.field_amplitude is not None:
+        d = jh.sinusoidal_field(args.frequency, args.field_amplitude, args.field_offset,
+                                periods=args.periods,
+                                samples_per_period=args.samples_per_period)
+        return d, (f"H = {args.field_offset:g} + {args.field_amplitude:g} "
+                   f"sin(2π·{args.frequency:g} t) A/m")
+    d = jh.sinusoidal_current(args.frequency, args.amplitude, args.offset, actuator,
+                              periods=args.periods, samples_per_period=args.samples_per_period)
+    return d, f"I = {args.amplitude:.2f} sin(2π·{args.frequency:g} t) + {args.offset:.2f} A"
+
+
+def run(args) -> int:
+    import jaxhyst as jh
+    from jaxhyst.io import write_simulation_csv
+
+    check_outputs(args)
+    params = parameters_arg(args.params or args.preset)
+    actuator = actuator_arg(args.actuator)
+    drive, what = _drive_from_args(args, actuator)
+    from jaxhyst.identify.measured import coarse_sampling
+
+    coarse = coarse_sampling(drive.observed(drive.H), args.substeps, fix="--substeps {}")
+    if coarse is not None:
+        warn(args, coarse)
+    sim = jh.simulate(params, actuator, drive, variant=variant_from_name(args.variant),
+                      substeps=args.substeps)
+    y = sim.observed("y")
+    summary = {
+        "params": args.params or args.preset, "actuator": actuator.name, "drive": what,
+        "samples_observed": int(y.shape[0]), "y_min_m": float(y.min()),
+        "y_max_m": float(y.max()), "M_over_Ms_min": float(sim.observed("M").min() / params.Ms),
+        "M_over_Ms_max": float(sim.observed("M").max() / params.Ms),
+    }  # fmt: skip
+    if args.png:  # the figure first: if it fails, no CSV is left behind without it
+        from jaxhyst.plots import plot_simulation
+
+        plot_simulation(sim, args.png, title=f"{actuator.name}, {what}")
+        summary["png"] = args.png
+    if args.csv:
+        write_simulation_csv(args.csv, sim)
+        summary["csv"] = args.csv
+    text = [f"simulated {summary['samples_observed']} observed samples ({actuator.name}, {what})",
+            f"  y in [{summary['y_min_m'] * 1e6:.3f}, {summary['y_max_m'] * 1e6:.3f}] μm, "
+            f"M/Ms in [{summary['M_over_Ms_min']:.3f}, {summary['M_over_Ms_max']:.3f}]"]
+    text += [f"  wrote {summary[k]}" for k in ("csv", "png") if k in summary]
+    print_result(args, summary, "\n".join(text))
+    return 0

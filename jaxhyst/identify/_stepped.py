@@ -1,0 +1,195 @@
+"""Optimistix's iteration, stepped: the one mirror of its loop in jaxhyst.
+
+A solve is ``init``, then ``advance`` (up to n of the solver's steps, a compiled
+``while_loop``), then ``finish`` (the solver's ``postprocess`` and the end point's cost)
+— exactly the loop of ``optx.least_squares``/``optx.minimise`` (`optimistix._iterate`:
+the termination test sees the previous iterate, a non-finite iterate ends the solve, the
+static part of the state is the initial one, a solve that did not terminate by itself
+reports ``nonlinear_max_steps_reached``); a test checks both give the same iterates. It
+is used two ways:
+
+- **traced whole** (`solve_traced`): one solve inside a compiled program — a hybrid's
+  local search inside each generation, replicate fits vmapped over data sets;
+- **stepped from the host** (`SteppedSolve`): a vmapped batch of starts advanced a chunk
+  of steps per dispatch by the one driver (`jaxhyst._driver`), which reports
+  progress and honours interruption between chunks. Nothing in the compiled programs
+  calls back into Python, so they go into the persistent compilation cache.
+
+Outcomes are `RESULTS` values throughout.
+"""
+
+from __future__ import annotations
+
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from ._objective import objective
+from .problem import AbstractProblem
+from .result import RESULTS
+from .solvers import accepted_residuals, final_step_size
+
+_TAGS = frozenset()
+
+
+def _terminate(solver, fn, y, options, state):
+    term, result = solver.terminate(fn, y, None, options, state, _TAGS)
+    finite = jnp.all(jnp.isfinite(y))
+    return term, optx.RESULTS.where(finite, result, optx.RESULTS.nonfinite)
+
+
+def init(problem: AbstractProblem, solver, z0):
+    """The solve's carry (y, steps, dynamic state, terminate, result) at z0, and the
+    static part of the solver state."""
+    solver, fn, options = objective(problem, solver)
+    f_struct, aux_struct = jax.eval_shape(fn, z0, None)
+    state = solver.init(fn, z0, None, options, f_struct, aux_struct, _TAGS)
+    term, result = _terminate(solver, fn, z0, options, state)
+    dynamic, static = eqx.partition(state, eqx.is_array)
+    return (z0, jnp.array(0), dynamic, term, result), static
+
+
+def running(carry, max_steps):
+    """Whether a solve with ``carry`` goes on (not terminated, no failure, under
+    ``max_steps``)."""
+    _, steps, _, term, result = carry
+    return (~term) & (result == optx.RESULTS.successful) & (steps < max_steps)
+
+
+def advance(problem: AbstractProblem, solver, static, carry, n, max_steps):
+    """Up to ``n`` more steps of the solve (fewer where it stops)."""
+    solver, fn, options = objective(problem, solver)
+
+    def cond(c):
+        return running(c[:5], max_steps) & (c[5] < n)
+
+    def body(c):
+        y, steps, dynamic, _, _, i = c
+        state = eqx.combine(static, dynamic)
+        new_y, new_state, _ = solver.step(fn, y, None, options, state, _TAGS)
+        term, result = _terminate(solver, fn, y, options, new_state)
+        return (new_y, steps + 1, eqx.filter(new_state, eqx.is_array), term, result, i + 1)
+
+    y, steps, dynamic, term, result, _ = jax.lax.while_loop(cond, body, (*carry, 0))
+    return y, steps, dynamic, term, result
+
+
+def finish(problem: AbstractProblem, solver, static, carry):
+    """(y, result, steps, cost, final step size, group residuals, known) at the end of a
+    solve. A Gauss–Newton state holds the residual vector at its accepted point, so no
+    simulation is run here for those; before the first accepted step the state holds
+    placeholder zeros (``known`` False) and the caller evaluates the end point."""
+    run, fn, options = objective(problem, solver)
+    y, steps, dynamic, term, result = carry
+    state = eqx.combine(static, dynamic)
+    result = optx.RESULTS.where((result == optx.RESULTS.successful) & ~term,
+                                optx.RESULTS.nonlinear_max_steps_reached, result)
+    y, _, _ = run.postprocess(fn, y, None, None, options, state, _TAGS, result)
+    held = accepted_residuals(run, state)
+    if held is None:
+        cost, residuals = problem.cost(y), problem.group_residuals(problem.space.params_from_z(y))
+        residuals, known = tuple(jnp.ravel(e) for e in residuals), jnp.array(True)
+    else:
+        r, accepted = held
+        cost, residuals, known = jnp.sum(r**2), problem.groups_from_residuals(r), accepted > 0
+    return (y, RESULTS.promote(result), steps, cost, final_step_size(run, state), residuals,
+            known)
+
+
+def solve_traced(problem: AbstractProblem, solver, z0, max_steps):
+    """One whole solve from z0 inside a trace: (z, result, steps, cost, final step size),
+    arrays only, so that it vmaps."""
+    carry, static = init(problem, solver, z0)
+    carry = advance(problem, solver, static, carry, max_steps, max_steps)
+    y, result, steps, cost, step_size, _, known = finish(problem, solver, static, carry)
+    cost = jnp.where(known, cost, problem.cost(y))  # (a cond of it does not vmap)
+    return y, result, steps, cost, step_size
+
+
+# -- batches stepped from the host ---------------------------------------------------------
+
+_running_jit = jax.jit(running)  # (op by op, each operation would compile on its own)
+
+
+@eqx.filter_jit
+def _init_batch(problem, solver, z0s):
+    return eqx.filter_vmap(lambda z: init(problem, solver, z),
+                           out_axes=eqx.if_array(0))(z0s)
+
+
+@eqx.filter_jit
+def _advance_batch(problem, solver, static, carry, n, max_steps, with_cost):
+    def one(c):
+        c = advance(problem, solver, static, c, n, max_steps)
+        # the cost for progress lines, in this program (a separate one would compile again)
+        return c, (problem.cost(c[0]) if with_cost else None)
+
+    return jax.vmap(one)(carry)
+
+
+@eqx.filter_jit
+def _finish_batch(problem, solver, static, carry):
+    return jax.vmap(lambda c: finish(problem, solver, static, c))(carry)
+
+
+@eqx.filter_jit
+def _evaluate_at(problem, z):
+    """(cost, group residuals) at the solver coordinate z."""
+    return problem.cost(z), problem.group_residuals(problem.space.params_from_z(z))
+
+
+class SteppedSolve:
+    """A vmapped batch of solves from the starts ``z0s`` (K, n), advanced from the host a
+    chunk of steps per dispatch (each dispatch kept near a quarter second): what the
+    driver runs for `jaxhyst.identify.solve`, ``multistart`` and a hybrid's final
+    solves. ``state`` is the batch's carry; `advance`, `done` and `describe` are the
+    driver's three questions; `outputs` ends the solves."""
+
+    def __init__(self, problem: AbstractProblem, solver, z0s, max_steps: int,
+                 with_cost: bool = False):
+        self.problem, self.solver, self.max_steps = problem, solver, np.int64(max_steps)
+        self.with_cost = bool(with_cost)
+        self.state, self.static = _init_batch(problem, solver, np.asarray(z0s))
+        self.chunk, self.costs, self.started = 1, None, time.perf_counter()
+
+    def done(self, carry) -> bool:
+        # (host scalars: jnp.asarray of one compiles a program of its own on first use)
+        return not np.any(np.asarray(_running_jit(carry, self.max_steps)))
+
+    def advance(self, carry):
+        t0 = time.perf_counter()
+        carry, costs = _advance_batch(self.problem, self.solver, self.static, carry,
+                                      np.int64(self.chunk), self.max_steps, self.with_cost)
+        jax.block_until_ready(carry)
+        if time.perf_counter() - t0 < 0.25:
+            self.chunk = min(self.chunk * 2, 64)
+        self.costs = costs
+        return carry
+
+    def describe(self, carry) -> tuple[int, str]:
+        steps = int(np.max(np.asarray(carry[1])))
+        text = f"step {steps}/{int(self.max_steps)}"
+        if self.costs is not None:
+            costs = np.asarray(self.costs)
+            text += f": best cost {np.min(np.where(np.isfinite(costs), costs, np.inf)):.4e}"
+        return steps, f"{text}, {time.perf_counter() - self.started:.1f} s"
+
+    def outputs(self, carry):
+        """(z, results, steps, cost, final step size, group residuals) of every solve, as
+        host values (``results`` a batch of `RESULTS`)."""
+        # on the host at once (indexing device arrays compiles a small program per shape)
+        *out, known = jax.device_get(_finish_batch(self.problem, self.solver, self.static,
+                                                   carry))
+        missing = np.flatnonzero(~np.asarray(known))  # solves that accepted no step
+        if missing.size:
+            out[3], out[5] = np.array(out[3]), [np.array(r) for r in out[5]]  # (writable)
+            for k in missing:
+                cost, residuals = _evaluate_at(self.problem, out[0][k])
+                out[3][k] = float(cost)
+                for r, e in zip(out[5], residuals, strict=True):
+                    r[k] = np.ravel(e)
+        return tuple(out)

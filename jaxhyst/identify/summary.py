@@ -1,0 +1,60 @@
+"""An `IdentificationResult` at a point: the end of every solve and hybrid."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import numpy as np
+
+from ._stepped import _evaluate_at
+from .problem import AbstractProblem
+from .result import RESULTS, IdentificationResult, as_result, bound_status, outcome_name
+from .space import u_from_z
+
+
+def _stats(groups, residuals):
+    """Per-group rms and max |e|, and the overall ones when all groups share a unit."""
+    out = {}
+    for g, e in zip(groups, residuals, strict=True):
+        e = np.asarray(e, dtype=float).ravel()
+        out[g.name] = {"rms": float(np.sqrt(np.mean(e**2))), "max_abs": float(np.max(np.abs(e))),
+                       "unit": g.unit,
+                       "sigma": None if g.sigma is None else float(g.sigma), "size": g.size}
+        if g.data_size is not None:  # max|data|: how far the fit is from its data
+            out[g.name]["data_scale"] = float(g.data_size)
+    units = {g.unit for g in groups}
+    if len(units) != 1:
+        return out, None, None, None
+    e = np.concatenate([np.asarray(r, dtype=float).ravel() for r in residuals])
+    return out, float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e))), float(np.sum(e**2))
+
+
+@eqx.filter_jit
+def _point(space, z):
+    """(free values in SI, parameter pytree) at the solver coordinate z."""
+    return space.free_from_u(u_from_z(z)), space.params_from_z(z)
+
+
+def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: float,
+              extra: dict | None = None, evaluated=None) -> IdentificationResult:
+    """An `IdentificationResult` at the solver coordinate ``z`` (without report).
+    ``evaluated``: (cost, group residuals) at ``z`` when the caller has them already."""
+    cost, residuals = evaluated if evaluated is not None else _evaluate_at(
+        problem, np.asarray(z))
+    cost = float(cost)
+    outcome = as_result(outcome)
+    if not np.isfinite(cost) and outcome_name(outcome) != "interrupted":
+        outcome = RESULTS.nonfinite
+    groups, rms, max_abs, sse = _stats(problem.groups, residuals)
+    space = problem.space
+    values, params = _point(space, np.asarray(z))  # (jnp.asarray would compile a copy)
+    values = np.asarray(values, dtype=float)
+    lower, upper = np.asarray(space.lower), np.asarray(space.upper)
+    at_bound = {space.names[i]: (side, float(lower[i] if side == "lower" else upper[i]))
+                for i, side in bound_status(values, lower, upper).items()}
+    return IdentificationResult(
+        params=params, free=space.names,
+        values=tuple(float(v) for v in values), cost=cost, outcome=outcome, steps=int(steps),
+        solver=solver, wall_time=wall, groups=groups, rms_error=rms, max_abs_error=max_abs,
+        sse=sse, output=problem.output, extra=extra or {},
+        at_bound=at_bound,
+    )  # fmt: skip

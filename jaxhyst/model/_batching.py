@@ -1,0 +1,146 @@
+"""The JAX batching machinery of the time loops, apart from the physics.
+
+A time loop takes seconds to trace. `batch_native` turns a loop written for one
+trajectory *and* for a batch (``loop(variant, p, H, batched)``) into one jitted function
+whose ``jax.vmap`` runs the batch-native form once on the whole batch (a ``custom_vmap``),
+each form traced once per structure and shapes (`traced_once`) whatever transformation or
+program calls it. `blocked_under_vmap` runs the work after the loop in blocks under a
+large ``jax.vmap``.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .._jax_compat import jaxpr_as_fun
+from ..sharding import vmap_blocked
+
+#: Traces kept per time loop (one per drive length and dtype in use, each a few MB).
+_TRACES_KEPT = 16
+
+
+def traced_once(fn):
+    """``fn`` evaluated from a jaxpr traced once per structure, shapes and dtypes of its
+    arguments (a pytree of arrays), whatever transformation or program calls it. A time
+    loop takes seconds to trace; JAX's jit cache would not share the trace between a
+    function's primal call and its batching rule, or between the programs of a local
+    solve (it also keys on the tracing context)."""
+    cache: dict = {}
+
+    def call(*args):
+        leaves, treedef = jax.tree.flatten(args)
+        key = (treedef, tuple((jnp.shape(x), jnp.result_type(x), _weak(x)) for x in leaves))
+        if key not in cache:
+            closed, shapes = jax.make_jaxpr(fn, return_shape=True)(*args)
+            if len(cache) >= _TRACES_KEPT:
+                del cache[next(iter(cache))]  # the oldest
+            cache[key] = (jaxpr_as_fun(closed), jax.tree.structure(shapes))
+        evaluate, out_tree = cache[key]
+        return jax.tree.unflatten(out_tree, evaluate(*leaves))
+
+    return call
+
+
+def _weak(x) -> bool:
+    """Whether x is weakly typed (a Python scalar, or an array or tracer marked so)."""
+    return bool(jax.typeof(x).weak_type)
+
+
+def batch_native(loop):
+    """``loop(variant, p, H, batched)`` as a jitted function of (variant, p, H) (each form
+    traced once, `traced_once`) whose ``jax.vmap`` runs
+    ``loop(..., batched=True)`` once on the whole batch (unbatched arguments broadcast),
+    and a batch of one member the smaller unbatched program (a single-start solve)."""
+    unbatched = traced_once(lambda variant, p, H: loop(variant, p, H, False))
+    batched = traced_once(lambda variant, p, H: loop(variant, p, H, True))
+
+    @jax.custom_batching.custom_vmap
+    def single(variant, p, H):
+        return unbatched(variant, p, H)
+
+    @single.def_vmap
+    def batch(axis_size, in_batched, variant, p, H):
+        args, flags = (variant, p, H), tuple(in_batched)
+        if not any(jax.tree.leaves(flags)):  # (jvp of the rule asks this too)
+            out = unbatched(*args)
+            return out, jax.tree.map(lambda _: False, out)
+        if axis_size == 1:
+            args = jax.tree.map(lambda x, b: x[0] if b else x, args, flags)
+            out = jax.tree.map(lambda y: y[None], unbatched(*args))
+        else:
+            args = jax.tree.map(
+                lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))),
+                args, flags)
+            out = batched(*args)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return jax.jit(single)
+
+
+def _splice(leaves, positions, values):
+    """``leaves`` with the entries at ``positions`` replaced by ``values``."""
+    leaves = list(leaves)
+    for i, value in zip(positions, values, strict=True):
+        leaves[i] = value
+    return leaves
+
+
+_BLOCKED: dict = {}
+
+
+def blocked_under_vmap(fn, **static):
+    """``fn(*args, **static)`` as a function of ``args`` whose ``jax.vmap`` runs in
+    blocks (`jaxhyst.sharding.vmap_blocked`: a batch of hundreds on the CPU, 64 members
+    at a time, so that its intermediates fit the caches; other batches and backends as
+    ``jax.vmap`` would). Its derivatives are ``fn``'s own: JAX does not differentiate a
+    custom batching rule in reverse mode, so the rule stays out of every derivative.
+    One wrapper per ``fn`` and value of ``static``."""
+    key = (fn, tuple(sorted(static.items())))
+    if key in _BLOCKED:
+        return _BLOCKED[key]
+
+    def call(*args):
+        return fn(*args, **static)
+
+    @jax.custom_batching.custom_vmap
+    def single(*args):
+        return call(*args)
+
+    @single.def_vmap
+    def batch(axis_size, in_batched, *args):
+        leaves, tree = jax.tree.flatten(args)
+        flags = jax.tree.leaves(in_batched)
+        batched = [i for i, b in enumerate(flags) if b]
+        if not batched:  # (jvp of the rule asks this too)
+            out = call(*args)
+            return out, jax.tree.map(lambda _: False, out)
+
+        def one(*values):
+            return call(*jax.tree.unflatten(tree, _splice(leaves, batched, values)))
+
+        out = vmap_blocked(one, axis_size)(*[leaves[i] for i in batched])
+        return out, jax.tree.map(lambda _: True, out)
+
+    @eqx.filter_custom_jvp
+    def blocked(args):
+        return single(*args)
+
+    @blocked.def_jvp
+    def blocked_jvp(primals, tangents):
+        (args,), (dots,) = primals, tangents
+        leaves, tree = jax.tree.flatten(args, is_leaf=lambda x: x is None)
+        dots = jax.tree.leaves(dots, is_leaf=lambda x: x is None)  # (None: no tangent)
+        moving = [i for i, d in enumerate(dots) if d is not None]
+        if not moving:
+            out = blocked(args)
+            return out, jax.tree.map(lambda _: None, out)
+
+        def moved(*values):
+            return call(*jax.tree.unflatten(tree, _splice(leaves, moving, values)))
+
+        return jax.jvp(moved, [leaves[i] for i in moving], [dots[i] for i in moving])
+
+    _BLOCKED[key] = lambda *args: blocked(args)
+    return _BLOCKED[key]

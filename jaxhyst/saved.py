@@ -1,0 +1,145 @@
+"""Models as data: an identified model (`Model`: parameters, Jiles–Atherton form,
+actuator, RK4 substeps) saved to and loaded from one file, in the ecosystem's form.
+
+**The file** is one line of JSON — the header: format and version, the form (its class
+name), the substeps, the parameters' units and leaf shape, the actuator's name and
+whether it has turns per metre, the versions of jaxhyst, JAX and Equinox that wrote it,
+and whatever the caller adds (``meta``) — followed by the model's arrays as
+``equinox.tree_serialise_leaves`` writes them. The header says what the arrays are, so
+`load_model` builds the matching template and ``equinox.tree_deserialise_leaves`` fills
+it; nothing is unpickled. Written through the package's file writer (atomically for a
+regular file).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._files import write_bytes
+from .actuator import Actuator
+from .drive import Drive
+from .model.jiles_atherton import (
+    AbstractJAVariant,
+    ClassicJA,
+    EnergyBasedJA,
+    PopJA,
+    VenkataramanJA,
+)
+from .model.simulate import Simulation, simulate, simulate_unchecked
+from .names import DEFAULT_SUBSTEPS
+from .params import NAMES, UNITS, Parameters
+
+FORMAT = "jaxhyst-model"
+VERSION = 1
+#: The built-in forms a file can name.
+FORMS = {cls.__name__: cls for cls in (EnergyBasedJA, ClassicJA, VenkataramanJA, PopJA)}
+
+
+class ModelFileError(ValueError):
+    """A model file cannot be read (one line naming the file and the fix)."""
+
+
+class Model(eqx.Module):
+    """An identified model, ready to simulate new drives.
+
+    - ``params``: `Parameters` (leaves of shape () — or (L,) for one set per loop of a
+      joint fit);
+    - ``actuator``: the `Actuator` (geometry, turns per metre, bias);
+    - ``variant``: the Jiles–Atherton form; ``substeps``: RK4 substeps per sample.
+    """
+
+    params: Parameters
+    actuator: Actuator
+    variant: AbstractJAVariant = EnergyBasedJA()
+    substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
+
+    def simulate(self, drive: Drive) -> Simulation:
+        """Every signal for ``drive`` (`jaxhyst.simulate`; one parameter set)."""
+        return simulate(self.params, self.actuator, drive, self.variant, self.substeps)
+
+    def simulate_unchecked(self, drive: Drive) -> Simulation:
+        """`simulate` without input checks, for use under jit/vmap/grad."""
+        return simulate_unchecked(self.params, self.actuator, drive, self.variant,
+                                  self.substeps)
+
+
+def _versions() -> dict:
+    from . import __version__
+
+    return {"jaxhyst": __version__, "jax": jax.__version__, "equinox": eqx.__version__}
+
+
+def save_model(path: str | os.PathLike, model: Model, **meta) -> None:
+    """Write ``model`` to ``path`` (see the module docstring); ``meta``: JSON-able
+    entries added to the header (the data it was fitted to, its error …)."""
+    if not isinstance(model, Model):
+        raise TypeError(f"save_model needs a jaxhyst.Model; got {type(model).__name__}.")
+    header = {"format": FORMAT, "version": VERSION, "variant": type(model.variant).__name__,
+              "substeps": model.substeps, "units": UNITS,
+              "parameter_shape": list(np.shape(model.params.Ms)),
+              "actuator": {"name": str(model.actuator.name),
+                           "has_turns": model.actuator.n is not None},
+              "versions": _versions(), "meta": meta}
+    buf = io.BytesIO()
+    buf.write(json.dumps(header).encode("utf-8") + b"\n")
+    eqx.tree_serialise_leaves(buf, model)
+    write_bytes(path, buf.getvalue())
+
+
+def read_header(path: str | os.PathLike) -> dict:
+    """The JSON header of a model file."""
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise ModelFileError(f"model file {path} does not exist (or is not a file).")
+    with open(path, "rb") as fh:
+        line = fh.readline()
+    try:
+        header = json.loads(line.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        header = None
+    if not isinstance(header, dict) or header.get("format") != FORMAT:
+        raise ModelFileError(f"{path} is not a jaxhyst model file (written by "
+                             "jaxhyst.save_model).")
+    if header.get("version") != VERSION:
+        raise ModelFileError(f"{path} is a model file of version {header.get('version')}; "
+                             f"this jaxhyst reads version {VERSION}.")
+    return header
+
+
+def load_model(path: str | os.PathLike, variant: AbstractJAVariant | None = None) -> Model:
+    """The `Model` saved in ``path``. ``variant``: the form, needed only when the file
+    names one that is not built in (your own form: pass an instance of it)."""
+    header = read_header(path)
+    name = header["variant"]
+    if variant is None:
+        if name not in FORMS:
+            raise ModelFileError(f"{path} was saved with the form {name}, which is not built "
+                                 f"in; pass variant={name}(…) to load_model.")
+        variant = FORMS[name]()
+    elif type(variant).__name__ != name:
+        raise ModelFileError(f"{path} was saved with the form {name}; variant= is a "
+                             f"{type(variant).__name__}.")
+    shape = tuple(header["parameter_shape"])
+    params = Parameters(*[jnp.zeros(shape) for _ in NAMES])
+    act = header["actuator"]
+    actuator = Actuator(1.0, 1.0, 1.0 if act["has_turns"] else None, 0.0, name=act["name"])
+    like = Model(params, actuator, variant, int(header["substeps"]))
+    with open(os.fspath(path), "rb") as fh:
+        fh.readline()
+        try:
+            model = eqx.tree_deserialise_leaves(fh, like)
+        except Exception as err:  # noqa: BLE001 - any failure to parse: a damaged file
+            raise ModelFileError(f"{path}: its arrays cannot be read ({type(err).__name__}); "
+                                 "the file is truncated or damaged.") from None
+    leaves, like_leaves = jax.tree.leaves(model), jax.tree.leaves(like)
+    if any(np.shape(a) != np.shape(b) for a, b in zip(leaves, like_leaves, strict=True)):
+        raise ModelFileError(f"{path}: its arrays do not match its header; the file is "
+                             "damaged.")
+    return model

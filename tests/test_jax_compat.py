@@ -1,0 +1,92 @@
+"""Every reach into JAX's extension or private API works on this JAX: none of the
+fallbacks of `jaxhyst._jax_compat` is taken, and each name does its job. Runs in the
+oldest-versions environment of .ci/run too (marker ``compat``)."""
+
+from __future__ import annotations
+
+import pathlib
+import re
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxhyst as jh
+from jaxhyst import _jax_compat as compat
+
+pytestmark = pytest.mark.compat
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def test_no_fallback_is_taken():
+    jnp.ones(2).sum().block_until_ready()
+    assert compat.backends_are_initialized()  # (JAX has computed by now)
+    assert compat.FALLBACKS == set(), compat.FALLBACKS
+
+
+def test_jit_and_vmap_are_told_apart():
+    seen = {}
+
+    def probe(x, tag):
+        seen[tag] = (compat.under_jit(), compat.under_vmap())
+        return x
+
+    jax.jit(lambda x: probe(x, "jit"))(1.0)
+    jax.vmap(lambda x: probe(x, "vmap"))(jnp.ones(2))
+    jax.grad(lambda x: probe(x, "grad"))(1.0)
+    assert seen["jit"] == (True, False)
+    assert seen["vmap"] == (False, True)
+    assert seen["grad"] == (False, False)
+
+
+def test_values_are_read_under_an_eager_grad_but_not_inside_jit():
+    got = {}
+
+    def f(x, tag):
+        got[tag] = compat.concrete_value(x)
+        return x * x
+
+    jax.grad(lambda x: f(x, "grad"))(3.0)
+    jax.jit(lambda x: f(x, "jit"))(3.0)
+    assert float(got["grad"]) == 3.0 and got["jit"] is None
+    # what it serves: a bad parameter under an eager grad is named, not a silent NaN
+    drive = jh.sinusoidal_field(10.0, 1e4, 0.0, samples_per_period=20)
+    with pytest.raises(ValueError, match="Parameter a = -1"):
+        jax.grad(lambda a: jh.simulate(jh.TABLE1_TRUE.replace(a=a), jh.ACTUATOR1,
+                                       drive).y.sum())(-1.0)
+
+
+def test_a_traced_jaxpr_evaluates_to_the_function():
+    closed = jax.make_jaxpr(lambda x: jnp.sin(x) * 2.0)(0.3)
+    np.testing.assert_allclose(compat.jaxpr_as_fun(closed)(0.3)[0], np.sin(0.3) * 2.0)
+
+
+def test_the_internals_are_reached_in_the_compatibility_module_only():
+    pattern = re.compile(r"DO_NOT_USE|jax\._src|jax\.extend")
+    found = [str(p.relative_to(ROOT)) for p in (ROOT / "jaxhyst").rglob("*.py")
+             if pattern.search(p.read_text(encoding="utf-8"))]
+    assert found == ["jaxhyst/_jax_compat.py"], found
+
+
+def test_the_xla_loop_setting_is_in_effect():
+    assert jh.cpu_loop_kernels().startswith("in effect"), jh.cpu_loop_kernels()
+
+
+@pytest.mark.parametrize("setup, env", [
+    ("import jax; jax.numpy.ones(2).sum().block_until_ready()", {}),  # JAX started first
+    ("", {"XLA_FLAGS": "--xla_backend_extra_options=xla_cpu_enable_fast_math=false"}),
+])
+def test_a_warning_says_once_when_the_xla_setting_cannot_be_applied(setup, env):
+    import os
+    import subprocess
+    import sys
+
+    code = f"{setup}\nimport jaxhyst\nimport jaxhyst.model\nprint(jaxhyst.cpu_loop_kernels())"
+    base = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}  # (set by jaxhyst)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       env={**base, "JAXHYST_XLA_FLAGS": "", **env}, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().startswith("not applied"), r.stdout
+    assert r.stderr.count("PerformanceWarning") == 1, r.stderr
+    assert "slower" in r.stderr and "JAXHYST_XLA_FLAGS=off" in r.stderr

@@ -1,0 +1,79 @@
+"""Saved models: a JSON header and Equinox's serialised leaves, loaded back as a model
+that simulates exactly as the one saved."""
+
+from __future__ import annotations
+
+import json
+import os
+import stat
+
+import numpy as np
+import pytest
+
+import jaxhyst as jh
+from jaxhyst.saved import ModelFileError, read_header
+
+
+def test_a_saved_model_loads_and_simulates_bit_for_bit(tmp_path):
+    p = jh.TABLE3[1000]
+    model = jh.Model(p, jh.ACTUATOR2, jh.ClassicJA(), substeps=3)
+    path = tmp_path / "act2.eqx"
+    jh.save_model(path, model, data="act2.csv", rms_error=1.5e-7)
+    header = read_header(path)
+    assert header["variant"] == "ClassicJA" and header["substeps"] == 3
+    assert header["units"]["Ms"] == "A/m" and header["meta"]["data"] == "act2.csv"
+    assert {"jaxhyst", "jax", "equinox"} <= set(header["versions"])
+    assert header["actuator"] == {"name": "Actuator2 (Iowa State)", "has_turns": False}
+    back = jh.load_model(path)
+    assert isinstance(back.variant, jh.ClassicJA) and back.substeps == 3
+    np.testing.assert_array_equal(back.params.to_array(), p.to_array())
+    assert back.actuator.n is None and float(back.actuator.Hb) == float(jh.ACTUATOR2.Hb)
+    drive = jh.sinusoidal_field(1000.0, 8e3, 16e3, samples_per_period=40)
+    np.testing.assert_array_equal(back.simulate(drive).y, model.simulate(drive).y)
+
+
+def test_one_parameter_set_per_loop_round_trips(tmp_path):
+    x = np.stack([jh.TABLE1_TRUE.to_array(), jh.TABLE1_TRUE.replace(k=4000.0).to_array()])
+    model = jh.Model(jh.Parameters.from_array(x), jh.ACTUATOR1)
+    jh.save_model(tmp_path / "joint.eqx", model)
+    back = jh.load_model(tmp_path / "joint.eqx")
+    np.testing.assert_array_equal(back.params.to_array(), x)
+    assert float(back.actuator.n) == float(jh.ACTUATOR1.n)
+
+
+def test_bad_model_files_are_refused_in_one_line(tmp_path):
+    path = tmp_path / "m.eqx"
+    with pytest.raises(ModelFileError, match="does not exist"):
+        jh.load_model(path)
+    path.write_text("t,H\n1,2\n")
+    with pytest.raises(ModelFileError, match="not a jaxhyst model file"):
+        jh.load_model(path)
+    jh.save_model(path, jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1))
+    whole = path.read_bytes()
+    path.write_bytes(whole[: len(whole) - 40])  # truncated arrays
+    with pytest.raises(ModelFileError, match="truncated or damaged"):
+        jh.load_model(path)
+    header = json.loads(whole.split(b"\n", 1)[0])
+    path.write_bytes(json.dumps({**header, "variant": "MyForm"}).encode() + b"\n"
+                     + whole.split(b"\n", 1)[1])
+    with pytest.raises(ModelFileError, match="not built in; pass variant=MyForm"):
+        jh.load_model(path)
+    with pytest.raises(ModelFileError, match="variant= is a PopJA"):
+        jh.load_model(path, variant=jh.PopJA())
+    with pytest.raises(TypeError, match="needs a jaxhyst.Model"):
+        jh.save_model(path, jh.TABLE1_TRUE)
+
+
+def test_a_model_written_to_a_device_leaves_the_device(tmp_path):
+    jh.save_model(os.devnull, jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1))
+    assert stat.S_ISCHR(os.stat(os.devnull).st_mode)
+
+
+def test_a_fitted_problem_gives_its_model(tmp_path):
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=40)
+    with pytest.warns(jh.identify.SamplingWarning):
+        problem = jh.synthetic_problem(jh.TABLE1_TRUE, drive, jh.ACTUATOR1, jh.TABLE1_BOUNDS,
+                                       variant=jh.VenkataramanJA())
+    model = problem.model(jh.TABLE1_TRUE)
+    assert isinstance(model.variant, jh.VenkataramanJA)
+    np.testing.assert_array_equal(drive.observed(model.simulate(drive).y), problem.data)
