@@ -25,6 +25,7 @@ import numpy as np
 from ._files import write_bytes
 from .actuator import Actuator
 from .drive import Drive
+from .model.flux import FluxDrive, FluxSimulation, simulate_flux
 from .model.jiles_atherton import (
     AbstractJAVariant,
     ClassicJA,
@@ -32,6 +33,7 @@ from .model.jiles_atherton import (
     PopJA,
     VenkataramanJA,
 )
+from .model.losses import Losses
 from .model.simulate import Simulation, simulate, simulate_unchecked
 from .names import DEFAULT_SUBSTEPS
 from .params import NAMES, UNITS, Parameters
@@ -52,22 +54,31 @@ class Model(eqx.Module):
     - ``params``: `Parameters` (leaves of shape () — or (L,) for one set per loop of a
       joint fit);
     - ``actuator``: the `Actuator` (geometry, turns per metre, bias);
-    - ``variant``: the Jiles–Atherton form; ``substeps``: RK4 substeps per sample.
+    - ``variant``: the Jiles–Atherton form; ``substeps``: RK4 substeps per sample;
+    - ``losses``: `jaxhyst.Losses` of the rate-dependent model, or None (rate
+      independent).
     """
 
     params: Parameters
     actuator: Actuator
     variant: AbstractJAVariant = EnergyBasedJA()
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
+    losses: Losses | None = None
 
     def simulate(self, drive: Drive) -> Simulation:
         """Every signal for ``drive`` (`jaxhyst.simulate`; one parameter set)."""
-        return simulate(self.params, self.actuator, drive, self.variant, self.substeps)
+        return simulate(self.params, self.actuator, drive, self.variant, self.substeps,
+                        self.losses)
 
     def simulate_unchecked(self, drive: Drive) -> Simulation:
         """`simulate` without input checks, for use under jit/vmap/grad."""
         return simulate_unchecked(self.params, self.actuator, drive, self.variant,
-                                  self.substeps)
+                                  self.substeps, self.losses)
+
+    def simulate_flux(self, drive: FluxDrive) -> FluxSimulation:
+        """The B-driven model for the flux density of ``drive`` (`jaxhyst.simulate_flux`:
+        H(t) and the energy per cycle)."""
+        return simulate_flux(self.params, drive, self.variant, self.losses, self.substeps)
 
 
 def _versions() -> dict:
@@ -86,6 +97,7 @@ def save_model(path: str | os.PathLike, model: Model, **meta) -> None:
               "parameter_shape": list(np.shape(model.params.Ms)),
               "actuator": {"name": str(model.actuator.name),
                            "has_turns": model.actuator.n is not None},
+              "has_losses": model.losses is not None,
               "versions": _versions(), "meta": meta}
     buf = io.BytesIO()
     buf.write(json.dumps(header).encode("utf-8") + b"\n")
@@ -130,7 +142,8 @@ def load_model(path: str | os.PathLike, variant: AbstractJAVariant | None = None
     params = Parameters(*[jnp.zeros(shape) for _ in NAMES])
     act = header["actuator"]
     actuator = Actuator(1.0, 1.0, 1.0 if act["has_turns"] else None, 0.0, name=act["name"])
-    like = Model(params, actuator, variant, int(header["substeps"]))
+    losses = Losses() if header.get("has_losses") else None
+    like = Model(params, actuator, variant, int(header["substeps"]), losses)
     with open(os.fspath(path), "rb") as fh:
         fh.readline()
         try:

@@ -77,3 +77,13 @@ def test_a_fitted_problem_gives_its_model(tmp_path):
     model = problem.model(jh.TABLE1_TRUE)
     assert isinstance(model.variant, jh.VenkataramanJA)
     np.testing.assert_array_equal(drive.observed(model.simulate(drive).y), problem.data)
+
+
+def test_a_rate_dependent_model_keeps_its_loss_coefficients(tmp_path):
+    model = jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1, losses=jh.Losses(0.02, 0.1))
+    jh.save_model(tmp_path / "dyn.eqx", model)
+    back = jh.load_model(tmp_path / "dyn.eqx")
+    assert float(back.losses.eddy) == 0.02 and float(back.losses.excess) == 0.1
+    assert jh.load_model(tmp_path / "dyn.eqx").losses is not None
+    jh.save_model(tmp_path / "static.eqx", jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1))
+    assert jh.load_model(tmp_path / "static.eqx").losses is None

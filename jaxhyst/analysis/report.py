@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..model.losses import LOSS_UNITS
 from ..params import UNITS
 
 Z95 = 1.959963984540054
@@ -235,6 +236,7 @@ class IdentifiabilityReport:
 
 
 def _unit(name: str) -> str:
-    return UNITS.get(_base_name(name), "")
+    base = _base_name(name)
+    return UNITS.get(base, LOSS_UNITS.get(base, ""))
 
 

@@ -6,6 +6,7 @@ immutable results. The identifiability report is attached one level up (`jaxhyst
 from ._objective import jacobian_linearized
 from ._stepped import solve_traced
 from .checkpoint import CheckpointError
+from .flux import FluxProblem
 from .hybrid import HYBRIDS, GAState, HybridGA
 from .joint import JointProblem, JointSpace, loop_problem
 from .local import multistart, solve, start_z
@@ -29,6 +30,7 @@ __all__ = [
     "AbstractOutput",
     "AbstractProblem",
     "CheckpointError",
+    "FluxProblem",
     "GAState",
     "GaussianPrior",
     "HYBRIDS",

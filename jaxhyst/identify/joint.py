@@ -222,7 +222,7 @@ class JointProblem(AbstractProblem):
     def model(self, params) -> Model:
         """The identified model at ``params`` (this problem's actuator, form and
         substeps), to simulate other drives or save (`jaxhyst.save_model`)."""
-        return Model(params, self.actuator, self.variant, self.substeps)
+        return Model(params, self.actuator, self.variant, self.substeps, None)
 
     @property
     def observations(self):

@@ -89,7 +89,7 @@ class Magnetization(AbstractOutput):
 
 
 class FluxDensity(AbstractOutput):
-    """Flux density B = μ0·(H + M), T."""
+    """Flux density B = μ0·(H_hyst + M), T (H_hyst = H without loss terms)."""
 
     name: ClassVar[str] = "flux_density"
     unit: ClassVar[str] = "T"
@@ -98,7 +98,7 @@ class FluxDensity(AbstractOutput):
     needs_time: ClassVar[bool] = False
 
     def of(self, sim: Simulation) -> jax.Array:
-        return MU0 * (sim.H + sim.M)
+        return MU0 * (sim.H_hyst + sim.M)
 
 
 #: Every output kind by name.

@@ -14,6 +14,7 @@ import numpy as np
 from ..actuator import Actuator
 from ..drive import Drive
 from ..model.jiles_atherton import AbstractJAVariant
+from ..model.losses import split_losses
 from ..model.simulate import (
     DEFAULT_SUBSTEPS,
     PAPER_VARIANT,
@@ -134,9 +135,12 @@ class Problem(AbstractProblem):
         self._check_priors()
 
     # -- model ----------------------------------------------------------------------
-    def simulate(self, params: Parameters) -> Simulation:
-        return simulate_unchecked(params, self.actuator, self.drive, self.variant,
-                                  self.substeps)
+    def simulate(self, params) -> Simulation:
+        """The simulation at ``params``: `Parameters`, or ``(Parameters, Losses)`` for the
+        rate-dependent model (a space from `ParameterSpace.with_losses`)."""
+        p, losses = split_losses(params)
+        return simulate_unchecked(p, self.actuator, self.drive, self.variant, self.substeps,
+                                  losses)
 
     def predict(self, params: Parameters) -> jax.Array:
         """The model's observed output at ``params`` (unit of ``output``)."""
@@ -163,7 +167,8 @@ class Problem(AbstractProblem):
     def model(self, params) -> Model:
         """The identified model at ``params`` (this problem's actuator, form and
         substeps), to simulate other drives or save (`jaxhyst.save_model`)."""
-        return Model(params, self.actuator, self.variant, self.substeps)
+        p, losses = split_losses(params)
+        return Model(p, self.actuator, self.variant, self.substeps, losses)
 
     @property
     def observations(self):

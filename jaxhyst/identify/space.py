@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._typing import Array, ArrayLike, Float
+from ..model.losses import LOSS_NAMES, Losses
 from ..params import NAMES, Bounds, Parameters, check_value
 
 
@@ -154,6 +155,48 @@ class ParameterSpace(eqx.Module):
         space = object.__new__(cls)
         space._set(lo[free], hi[free], base, free, list(range(len(free))),
                    [names[i] for i in free], names, treedef, shapes)
+        return space
+
+    @classmethod
+    def with_losses(cls, bounds: Bounds, losses: Mapping, fixed: dict | None = None
+                    ) -> ParameterSpace:
+        """A space over the pair ``(Parameters, Losses)`` of the rate-dependent model: the
+        ten parameters as ``ParameterSpace(bounds, fixed)``, and the loss coefficients
+        ``eddy`` and ``excess`` (`jaxhyst.Losses`) in the box ``losses``
+        ``{name: (lower, upper)}`` (SI; a coefficient left out is held at 0). ``fixed``
+        may name them too."""
+        unknown = sorted(set(losses) - set(LOSS_NAMES))
+        if unknown:
+            raise ValueError(f"losses: unknown coefficients {unknown}; they are "
+                             f"{list(LOSS_NAMES)} ({{name: (lower, upper)}}, SI).")
+        fixed = dict(fixed or {})
+        names = (*NAMES, *LOSS_NAMES)
+        bad = [n for n in fixed if n not in names]
+        if bad:
+            raise ValueError(f"Cannot fix unknown parameter(s) {bad}; names are {list(names)}.")
+        box = {n: tuple(float(v) for v in losses.get(n, (0.0, 0.0))) for n in LOSS_NAMES}
+        for n, (a, b) in box.items():
+            if not (np.isfinite(a) and np.isfinite(b) and 0 <= a <= b):
+                raise ValueError(f"losses[{n!r}] = ({a}, {b}): the box of a loss coefficient "
+                                 "needs 0 <= lower <= upper, finite (SI).")
+            if n not in losses:
+                fixed.setdefault(n, 0.0)
+        lo = np.concatenate([np.asarray(bounds.lower.to_array(), float),
+                             [box[n][0] for n in LOSS_NAMES]])
+        hi = np.concatenate([np.asarray(bounds.upper.to_array(), float),
+                             [box[n][1] for n in LOSS_NAMES]])
+        base = 0.5 * (lo + hi)
+        for n, v in fixed.items():
+            value = check_value(n if n in NAMES else "", v, f"fixed value of {n}")
+            if n in LOSS_NAMES and value < 0:
+                raise ValueError(f"fixed value of {n} = {value:g}: a loss coefficient must "
+                                 "be >= 0.")
+            base[names.index(n)] = value
+        free = [i for i, n in enumerate(names) if n not in fixed]
+        space = object.__new__(cls)
+        space._set(lo[free], hi[free], base, free, list(range(len(free))),
+                   [names[i] for i in free], list(names),
+                   jax.tree.structure((bounds.lower, Losses())), ((),) * len(names))
         return space
 
     @classmethod

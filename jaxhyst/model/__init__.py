@@ -1,5 +1,15 @@
 """The model chain: Jiles–Atherton magnetization → magnetostriction → structural dynamics."""
 
+from .flux import (
+    FluxDrive,
+    FluxDriven,
+    FluxSimulation,
+    flux_from_period,
+    flux_from_record,
+    simulate_flux,
+    simulate_flux_unchecked,
+    sinusoidal_flux,
+)
 from .jiles_atherton import (
     AbstractAnhystereticForm,
     AbstractJAVariant,
@@ -11,6 +21,7 @@ from .jiles_atherton import (
     mirr_of_reversible_fraction,
 )
 from .langevin import langevin, langevin_slope
+from .losses import Losses, eddy_coefficient
 from .magnetostriction import magnetostriction
 from .simulate import Simulation, simulate, simulate_unchecked
 from .structure import frequency_response
@@ -20,15 +31,25 @@ __all__ = [
     "AbstractJAVariant",
     "ClassicJA",
     "EnergyBasedJA",
+    "FluxDrive",
+    "FluxDriven",
+    "FluxSimulation",
+    "Losses",
     "PopJA",
     "Simulation",
     "VenkataramanJA",
+    "eddy_coefficient",
     "evaluate_by_differentiation",
+    "flux_from_period",
+    "flux_from_record",
     "frequency_response",
     "langevin",
     "langevin_slope",
     "magnetostriction",
     "mirr_of_reversible_fraction",
     "simulate",
+    "simulate_flux",
+    "simulate_flux_unchecked",
     "simulate_unchecked",
+    "sinusoidal_flux",
 ]

@@ -246,3 +246,7 @@ class PopJA(AbstractAnhystereticForm):
 
     def irreversible_magnetization(self, H, M, p: Parameters):
         return mirr_of_reversible_fraction(H, M, p)
+
+
+#: The paper's form (an immutable Module: a safe shared default).
+PAPER_VARIANT = EnergyBasedJA()

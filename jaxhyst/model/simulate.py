@@ -30,12 +30,13 @@ from ..names import DEFAULT_SUBSTEPS
 from ..params import Parameters, check_parameters, is_concrete
 from ..sharding import vmap_blocked
 from ._batching import blocked_under_vmap
-from .jiles_atherton import AbstractJAVariant, EnergyBasedJA, anhysteretic
+from .dynamic import dynamic_path
+from .jiles_atherton import PAPER_VARIANT, AbstractJAVariant, anhysteretic
+from .losses import Losses
 from .magnetization import magnetization_path
 from .magnetostriction import magnetostriction
 from .structure import hermite_taylor_coefficients, structural_response
 
-PAPER_VARIANT = EnergyBasedJA()  # immutable Module: a safe shared default
 
 def _outside_jit(tree) -> bool:
     """Whether a call with the inputs ``tree`` runs outside any jit trace: with concrete
@@ -50,7 +51,8 @@ def _outside_jit(tree) -> bool:
 class Simulation(eqx.Module):
     """Every signal of one simulation, per drive sample, shape (T,) (or (P, T) batched).
 
-    - ``t``: time, s;  ``H``: applied field, A/m
+    - ``t``: time, s;  ``H``: applied field, A/m; ``H_hyst``: the field the hysteresis
+      model sees (H itself without loss terms; H − H_eddy − H_exc with them), A/m
     - ``M``: magnetization, A/m; ``Man``: anhysteretic, A/m; ``Mirr``: irreversible, A/m
     - ``lam``: magnetostriction λ, 1
     - ``y``: output displacement, m; ``velocity``: ẏ, m/s; ``strain``: ε = y/lr, 1
@@ -59,6 +61,7 @@ class Simulation(eqx.Module):
 
     t: Signal
     H: Signal
+    H_hyst: Signal
     M: Signal
     Man: Signal
     Mirr: Signal
@@ -84,6 +87,7 @@ def simulate_unchecked(
     drive: Drive,
     variant: AbstractJAVariant = PAPER_VARIANT,
     substeps: int = DEFAULT_SUBSTEPS,
+    losses: Losses | None = None,
 ) -> Simulation:
     """`simulate` without input validation: the pure function for jit/vmap/grad inside
     solvers. Same arguments and result as `simulate`.
@@ -93,23 +97,28 @@ def simulate_unchecked(
     traced into your program. Still wrap your own transformations in ``jax.jit``: the
     rest of your function otherwise runs operation by operation
     (docs/derivatives.md)."""
-    if _outside_jit((params, actuator, drive)):
-        return _simulate_jit(params, actuator, drive, variant, substeps)
-    return _simulate(params, actuator, drive, variant, substeps)
+    if _outside_jit((params, actuator, drive, losses)):
+        return _simulate_jit(params, actuator, drive, variant, substeps, losses)
+    return _simulate(params, actuator, drive, variant, substeps, losses)
 
 
-def _simulate(params, actuator, drive, variant, substeps) -> Simulation:
+def _simulate(params, actuator, drive, variant, substeps, losses=None) -> Simulation:
     """The simulation itself (`simulate_unchecked`)."""
     S = _static_substeps(substeps)
-    M_sub, k_sub = magnetization_path(params, drive.H, variant=variant, substeps=S)
-    args = (variant, params, actuator.Ar, drive.t, drive.H, M_sub, k_sub)
+    if losses is None:  # rate independent
+        M_sub, k_sub = magnetization_path(params, drive.H, variant=variant, substeps=S)
+        H_hyst = drive.H
+    else:  # the rate-dependent loop (`jaxhyst.model.dynamic`)
+        M_sub, k_sub, H_hyst = dynamic_path(params, losses, drive.t, drive.H,
+                                            variant=variant, substeps=S)
+    args = (variant, params, actuator.Ar, drive.t, H_hyst, M_sub, k_sub)
     if under_vmap():  # its batch rule in blocks (`_batching.blocked_under_vmap`)
         M, Man, Mirr, lam, y, v = blocked_under_vmap(_after_the_loop, uniform=drive.uniform,
                                                       S=S)(*args)
     else:  # (the same without the wrappers: less to trace for grad)
         M, Man, Mirr, lam, y, v = _after_the_loop(*args, drive.uniform, S)
-    return Simulation(t=drive.t, H=drive.H, M=M, Man=Man, Mirr=Mirr, lam=lam, y=y,
-                      velocity=v, strain=y / actuator.lr, run_in=drive.run_in)
+    return Simulation(t=drive.t, H=drive.H, H_hyst=H_hyst, M=M, Man=Man, Mirr=Mirr, lam=lam,
+                      y=y, velocity=v, strain=y / actuator.lr, run_in=drive.run_in)
 
 
 _simulate_jit = eqx.filter_jit(_simulate)
@@ -149,7 +158,7 @@ def _static_substeps(substeps) -> int:
     return int(substeps)
 
 
-def _check_inputs(params, actuator, drive, variant, substeps) -> None:
+def _check_inputs(params, actuator, drive, variant, substeps, losses=None) -> None:
     """The public entry points' validation: types, substeps, physical parameter values."""
     if not isinstance(params, Parameters):
         raise TypeError(f"params must be jaxhyst.Parameters; got {type(params).__name__}.")
@@ -164,6 +173,9 @@ def _check_inputs(params, actuator, drive, variant, substeps) -> None:
                         f"EnergyBasedJA()); got {variant!r}.")
     if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
         raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
+    if losses is not None and not isinstance(losses, Losses):
+        raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess) or None; got "
+                        f"{losses!r}.")
     check_parameters(params)
 
 
@@ -190,6 +202,7 @@ def simulate(
     drive: Drive,
     variant: AbstractJAVariant = PAPER_VARIANT,
     substeps: int = DEFAULT_SUBSTEPS,
+    losses: Losses | None = None,
 ) -> Simulation:
     """Simulate the actuator: drive H(t) → M, Man, Mirr → λ → y, ε.
 
@@ -201,6 +214,8 @@ def simulate(
     - ``variant``: Jiles–Atherton form; the paper's `EnergyBasedJA` by default.
     - ``substeps``: RK4 substeps per sample interval (static). The default 2 keeps the
       error below 1e-5 of max|y| at ≥ 200 samples per period; see docs/theory.md.
+    - ``losses``: `jaxhyst.Losses` (eddy-current and excess loss coefficients) for the
+      rate-dependent model (`jaxhyst.model.dynamic`); None (default): rate independent.
 
     **Returns:** a `Simulation` with every signal, shape (T,); raises
     ``FloatingPointError`` (naming the first bad sample) if the simulation diverged
@@ -208,9 +223,9 @@ def simulate(
     over parameter sets use ``jax.vmap(simulate_unchecked, in_axes=(0, None, None))``
     or `jaxhyst.simulate_batch`.
     """
-    _check_inputs(params, actuator, drive, variant, substeps)
+    _check_inputs(params, actuator, drive, variant, substeps, losses)
     _check_single(params, drive)
-    sim = _simulate_jit(params, actuator, drive, variant, substeps)
+    sim = _simulate_jit(params, actuator, drive, variant, substeps, losses)
     if isinstance(sim.M, jax.core.Tracer):
         return sim
     finite = np.isfinite(np.asarray(sim.M)) & np.isfinite(np.asarray(sim.y))  # (no compile)
@@ -226,8 +241,9 @@ def simulate(
 
 
 @eqx.filter_jit
-def _simulate_batch(params, actuator, drive, variant, substeps):
-    return vmap_blocked(lambda p: simulate_unchecked(p, actuator, drive, variant, substeps),
+def _simulate_batch(params, actuator, drive, variant, substeps, losses):
+    return vmap_blocked(lambda p: simulate_unchecked(p, actuator, drive, variant, substeps,
+                                                     losses),
                         jnp.shape(params.Ms)[0])(params)
 
 
@@ -237,15 +253,16 @@ def simulate_batch(
     drive: Drive,
     variant: AbstractJAVariant = PAPER_VARIANT,
     substeps: int = DEFAULT_SUBSTEPS,
+    losses: Losses | None = None,
 ) -> Simulation:
     """`simulate` for a batch of parameter sets (leaves of shape (P,)) in one vmapped,
     jitted call: signals of shape (P, T), evaluated as the GA evaluates populations: on the
     CPU a batch of hundreds runs in blocks of 64 members (`jaxhyst.sharding.vmap_blocked`:
     the same values to round-off; timings in benchmarks/RESULTS.md)."""
-    _check_inputs(params, actuator, drive, variant, substeps)
+    _check_inputs(params, actuator, drive, variant, substeps, losses)
     if jnp.ndim(params.Ms) != 1:
         raise ValueError(
             "simulate_batch needs Parameters with 1-D leaves of shape (P,); use simulate "
             "for a single parameter set."
         )
-    return _simulate_batch(params, actuator, drive, variant, substeps)
+    return _simulate_batch(params, actuator, drive, variant, substeps, losses)

@@ -1,0 +1,149 @@
+"""B-driven identification: `FluxProblem`, the magnetic parameters (and the loss
+coefficients of the rate-dependent model) from records of the flux density B(t) with
+either the measured field H(t) or the measured energy per cycle ∮ H dB (the core loss
+per volume divided by the frequency).
+
+Each record is one `FluxDrive` (all of one length and run-in, as measured periods of a
+core-loss database are); the records are simulated in one ``jax.vmap``. The parameter
+pytree is `Parameters` (the static model) or ``(Parameters, Losses)``
+(`ParameterSpace.with_losses`), shared by all records, or with leaves of shape (L,) for
+one value per record (a space from `ParameterSpace.for_loops`, or the
+condition-dependent parameters of `jaxhyst.identify.conditions`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..model.flux import FluxDrive, simulate_flux_unchecked
+from ..model.jiles_atherton import PAPER_VARIANT, AbstractJAVariant
+from ..model.losses import split_losses
+from ..names import DEFAULT_SUBSTEPS
+from .problem import AbstractProblem, GaussianPrior, ResidualGroup
+from .space import ParameterSpace
+
+#: What a `FluxProblem` observes: name → unit of its data.
+FLUX_OUTPUTS = {"field": "A/m", "cycle_energy": "J/m^3"}
+
+
+def stack_flux_drives(drives: Sequence[FluxDrive]) -> FluxDrive:
+    """One `FluxDrive` with leaves (L, T) from L drives of one length and run-in."""
+    drives = list(drives)
+    if not drives or not all(isinstance(d, FluxDrive) for d in drives):
+        raise TypeError("give a list of jaxhyst.FluxDrive (flux_from_period, "
+                        "flux_from_record, sinusoidal_flux …).")
+    shapes = {(d.n_samples, d.run_in) for d in drives}
+    if len(shapes) != 1:
+        raise ValueError(f"the records must have one length and run-in (their (samples, "
+                         f"run-in) are {sorted(shapes)}); resample them to a common length.")
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *drives)
+
+
+class FluxProblem(AbstractProblem):
+    """Identify from L B-driven records (see the module docstring).
+
+    **Arguments:**
+    - ``data``: per record, the measured field H at the drive's observed samples (A/m,
+      ``output="field"``) or the measured energy per cycle over its observed part
+      (J/m³, ``output="cycle_energy"``: power loss per volume / frequency).
+    - ``drives``: one `FluxDrive` per record (one length and run-in).
+    - ``space``: the `ParameterSpace` (`ParameterSpace.with_losses` for the rate-dependent
+      model; its structural parameters never enter and are best fixed).
+    - ``variant``, ``substeps``: the Jiles–Atherton form and RK4 substeps.
+    - ``sigma``, ``priors``: as in `jaxhyst.Problem` (sigma: a number for every record).
+
+    Residuals: for ``field``, model − data per record (one group each, normalised by the
+    record's max|H|); for ``cycle_energy``, the relative error model/data − 1 of each
+    record (one group of L), so that records of different loss count alike.
+    """
+
+    data: jax.Array
+    drive: FluxDrive
+    space: ParameterSpace
+    output: str = eqx.field(static=True)
+    scales: tuple = eqx.field(static=True)
+    variant: AbstractJAVariant = PAPER_VARIANT
+    substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
+    sigma: float | None = eqx.field(static=True, default=None)
+    priors: tuple = eqx.field(static=True, default=())
+
+    def __init__(self, data, drives: Sequence[FluxDrive], space: ParameterSpace,
+                 output: str = "field", variant: AbstractJAVariant = PAPER_VARIANT,
+                 substeps: int = DEFAULT_SUBSTEPS, sigma: float | None = None,
+                 priors: Sequence[GaussianPrior] = ()):
+        if output not in FLUX_OUTPUTS:
+            raise ValueError(f"Unknown output {output!r} of a FluxProblem; choose one of "
+                             f"{list(FLUX_OUTPUTS)}.")
+        if not isinstance(space, ParameterSpace):
+            raise TypeError("space must be a jaxhyst.ParameterSpace.")
+        drive = stack_flux_drives(drives)
+        L, n_obs = len(drives), drive.n_observed
+        data = np.asarray(data, dtype=np.float64)
+        want = (L, n_obs) if output == "field" else (L,)
+        if data.shape != want:
+            what = ("one value per observed sample" if output == "field"
+                    else "one energy per record")
+            raise ValueError(f"{output} data for {L} records must have shape {want} "
+                             f"({what}); got {data.shape}.")
+        if not np.all(np.isfinite(data)):
+            raise ValueError(f"{output} data contain NaN or inf; remove those records.")
+        if output == "cycle_energy" and np.any(data <= 0):
+            i = int(np.flatnonzero(data <= 0)[0])
+            raise ValueError(f"record {i}: an energy per cycle must be > 0 (J/m^3); got "
+                             f"{data[i]:g}.")
+        scales = np.max(np.abs(data), axis=-1) if output == "field" else np.ones(L)
+        if np.any(scales == 0):
+            raise ValueError("a record's field data are identically zero; nothing to fit.")
+        self.data, self.drive, self.space = jnp.asarray(data), drive, space
+        self.output, self.scales = output, tuple(float(s) for s in scales)
+        self.variant, self.substeps = variant, int(substeps)
+        self.sigma = None if sigma is None else float(sigma)
+        self.priors = tuple(priors)
+        self._check_priors()
+
+    @property
+    def n_records(self) -> int:
+        return len(self.scales)
+
+    def simulate(self, params):
+        """The `FluxSimulation` of every record (leaves with a leading axis L)."""
+        p, losses = split_losses(params)
+        per_record = jnp.ndim(p.Ms) == 1
+        axes = 0 if per_record else None
+        return jax.vmap(lambda p, L, d: simulate_flux_unchecked(p, d, self.variant, L,
+                                                                self.substeps),
+                        in_axes=(axes, axes if losses is not None else None, 0))(
+            p, losses, self.drive)
+
+    def predict(self, params) -> jax.Array:
+        """The model's field (L, n_obs) or energies per cycle (L,)."""
+        sim = self.simulate(params)
+        if self.output == "field":
+            return sim.H[..., self.drive.run_in:]
+        return sim.cycle_energy
+
+    @property
+    def groups(self) -> tuple[ResidualGroup, ...]:
+        if self.output == "field":
+            return tuple(ResidualGroup(f"record {i} (field)", int(self.data.shape[1]), "A/m",
+                                       self.sigma, scale=s, data_size=s)
+                         for i, s in enumerate(self.scales))
+        return (ResidualGroup("cycle energy (relative)", self.n_records, "1", self.sigma),)
+
+    def group_residuals(self, params) -> tuple:
+        pred = self.predict(params)
+        if self.output == "field":
+            return tuple(pred[i] - self.data[i] for i in range(self.n_records))
+        return (pred / self.data - 1.0,)
+
+    @property
+    def observations(self):
+        return self.data
+
+    def with_data(self, data) -> FluxProblem:
+        return eqx.tree_at(lambda q: q.data, self, jnp.asarray(data, dtype=jnp.float64))

@@ -1,0 +1,233 @@
+"""The B-driven (inverse) model: given the flux density B(t) and the parameters, the field
+H(t) — and the energy per cycle ∮ H dB.
+
+**The scheme.** With B prescribed, the magnetization follows B alone: the hysteresis field
+is H_hyst = B/μ0 − M, and along it every Jiles–Atherton form gives dM/dH, so that
+
+    dM/dB = χ / (μ0·(1 + χ)),   χ = dM/dH at (H_hyst, M),
+
+with the field direction δ = sign(dB) (dH_hyst/dB = 1/(μ0(1 + χ)) > 0). `FluxDriven`
+wraps any form as this slope in B, so the B-driven path *is* the forward time loop
+(`magnetization_path`) run along B: RK4 in B with ``substeps`` pieces per sample
+interval, the δM switch located on a piece boundary, the same cheap derivative rule, the
+same batching. B between samples is piecewise linear in time; the loss fields of
+`jaxhyst.model.losses` are then constant over each interval, and the applied field is
+
+    H = H_hyst + H_eddy + H_exc,
+
+taken at each sample with the mean of the rates of its two neighbouring intervals
+(second order for a smooth B). The energy per cycle and volume is exact for that B: the
+static part ∮ H_hyst dB by the cubic Hermite rule on each RK4 piece (H_hyst and its
+slope dH_hyst/dB = 1/μ0 − dM/dB at both ends: 4th order, like RK4), the loss part by
+`jaxhyst.model.losses.dynamic_energy` per interval.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from .._typing import Array, Float, Signal
+from ..drive import UNIFORM_TOLERANCE, Drive
+from ..names import DEFAULT_SUBSTEPS
+from ..params import MU0, Parameters, check_parameters, is_concrete
+from .jiles_atherton import PAPER_VARIANT, AbstractJAVariant, anhysteretic
+from .losses import Losses, dynamic_energy, dynamic_field
+from .magnetization import magnetization_path
+
+#: Largest flux density accepted in a B record, T (a larger value is a unit mistake).
+MAX_FLUX_DENSITY = 100.0
+
+
+class FluxDriven(AbstractJAVariant):
+    """A Jiles–Atherton form driven by B: its slope is dM/dB at (B, M) and its switch
+    distance is the form's own at H_hyst = B/μ0 − M (see the module docstring)."""
+
+    form: AbstractJAVariant
+    scales_with_Ms: ClassVar[bool] = False  # (B/μ0 − M does not scale with Ms)
+
+    @property
+    def parameters(self) -> tuple[str, ...]:
+        return self.form.parameters
+
+    def slope(self, B, M, delta, p: Parameters, pinning=True):
+        chi = self.form.slope(B / MU0 - M, M, delta, p, pinning)
+        return chi / (MU0 * (1.0 + chi))
+
+    def evaluate(self, B, M, delta, p: Parameters, pinning=True):
+        chi, d, rate = self.form.evaluate(B / MU0 - M, M, delta, p, pinning)
+        per_B = 1.0 / (MU0 * (1.0 + chi))  # dH_hyst/dB along the path
+        return chi * per_B, d, rate * per_B
+
+    def irreversible_magnetization(self, B, M, p: Parameters):
+        return self.form.irreversible_magnetization(B / MU0 - M, M, p)
+
+
+class FluxDrive(eqx.Module):
+    """A sampled flux density: times ``t`` (s) and ``B`` (T), shape (T,), B piecewise
+    linear between samples, and the leading ``run_in`` samples simulated but not observed
+    (a ramp from the demagnetized state, whole periods whose transient is discarded). Build
+    it from a record (`flux_from_record`, `flux_from_period`) or a sinusoid
+    (`sinusoidal_flux`); its structure (length, run-in, uniform sampling) is static, the
+    values are data."""
+
+    t: Signal
+    B: Signal
+    run_in: int = eqx.field(static=True, default=0)
+    uniform: bool = eqx.field(static=True, default=False)
+
+    def __init__(self, t, B, run_in: int = 0, uniform: bool | None = None):
+        if is_concrete(B) and np.ndim(B) == 1 and np.all(np.isfinite(np.asarray(B))) and \
+                np.max(np.abs(np.asarray(B))) > MAX_FLUX_DENSITY:
+            i = int(np.argmax(np.abs(np.asarray(B)) > MAX_FLUX_DENSITY))
+            raise ValueError(f"B at sample {i} is {float(np.asarray(B)[i]):g} T, beyond "
+                             f"{MAX_FLUX_DENSITY:g} T; check its unit (T) and column.")
+        checked = Drive(t, B, run_in, uniform)  # (the same checks of t, lengths, run-in)
+        self.t, self.B = checked.t, checked.H
+        self.run_in, self.uniform = checked.run_in, checked.uniform
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.t.shape[-1])
+
+    @property
+    def n_observed(self) -> int:
+        return self.n_samples - self.run_in
+
+    def observed(self, signal: Float[Array, "*batch T"]) -> Float[Array, "*batch T_obs"]:
+        """The observed part (after the run-in) of a per-sample signal."""
+        return signal[..., self.run_in:]
+
+    @classmethod
+    def of(cls, drive: Drive) -> FluxDrive:
+        """The flux drive with the samples of ``drive`` read as B (T)."""
+        return cls(drive.t, drive.H, drive.run_in, drive.uniform)
+
+
+class FluxSimulation(eqx.Module):
+    """Every signal of a B-driven simulation, per sample, shape (T,) (or batched):
+    ``t`` (s), ``B`` (T), ``H`` applied field (A/m), ``H_hyst`` = B/μ0 − M (A/m), ``M``,
+    ``Man`` (A/m); ``cycle_energy`` (J/m³): ∮ H dB over the observed samples (the loss per
+    cycle and volume when they span one period; `loss_density` divides by the periods).
+    ``run_in`` as in `jaxhyst.Simulation`."""
+
+    t: Signal
+    B: Signal
+    H: Signal
+    H_hyst: Signal
+    M: Signal
+    Man: Signal
+    cycle_energy: Float[Array, "*batch"]
+    run_in: int = eqx.field(static=True, default=0)
+
+    def observed(self, name: str = "H") -> Float[Array, "*batch T_obs"]:
+        return getattr(self, name)[..., self.run_in:]
+
+    def loss_density(self, frequency, periods: int = 1):
+        """Power loss per volume, W/m³: f·∮H dB/periods over the observed samples."""
+        return frequency * self.cycle_energy / periods
+
+
+def _hermite_energy(B_points, H_points, dH_points):
+    """∫ H dB over each RK4 piece by the cubic Hermite rule, summed per interval:
+    B_points, H_points, dH_points (dH/dB) at u_0 … u_S, shape (N, S + 1) → (N,)."""
+    dB = jnp.diff(B_points, axis=-1)
+    piece = 0.5 * dB * (H_points[..., :-1] + H_points[..., 1:]) \
+        + dB * dB / 12.0 * (dH_points[..., :-1] - dH_points[..., 1:])
+    return jnp.sum(piece, axis=-1)
+
+
+def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
+                            variant: AbstractJAVariant = PAPER_VARIANT,
+                            losses: Losses | None = None, substeps: int = DEFAULT_SUBSTEPS
+                            ) -> FluxSimulation:
+    """`simulate_flux` without input checks: the pure function for jit/vmap/grad."""
+    S = int(substeps)
+    losses = Losses() if losses is None else losses
+    B, t = drive.B, drive.t
+    M_sub, k_sub = magnetization_path(params, B, variant=FluxDriven(variant), substeps=S)
+    zero = jnp.zeros((1,), dtype=B.dtype)
+    M = jnp.concatenate([zero, M_sub[:, -1]])
+    H_hyst = B / MU0 - M
+    rate = jnp.diff(B) / jnp.diff(t)  # T/s, per interval
+    at_samples = jnp.concatenate([rate[:1], 0.5 * (rate[:-1] + rate[1:]), rate[-1:]])
+    H = H_hyst + dynamic_field(at_samples, losses)
+    # energy per interval of the observed part: static (Hermite on the RK4 pieces) + loss
+    frac = jnp.arange(S + 1, dtype=B.dtype) / S
+    B_points = B[:-1, None] + frac * jnp.diff(B)[:, None]
+    M_points = jnp.concatenate([M[:-1, None], M_sub], axis=1)
+    per_interval = _hermite_energy(B_points, B_points / MU0 - M_points, 1.0 / MU0 - k_sub) \
+        + dynamic_energy(jnp.diff(B), jnp.diff(t), losses)
+    energy = jnp.sum(per_interval[drive.run_in:])
+    Man, _ = anhysteretic(H_hyst, M, params)
+    return FluxSimulation(t=t, B=B, H=H, H_hyst=H_hyst, M=M, Man=Man, cycle_energy=energy,
+                          run_in=drive.run_in)
+
+
+_simulate_flux_jit = eqx.filter_jit(simulate_flux_unchecked)
+
+
+def simulate_flux(params: Parameters, drive: FluxDrive,
+                  variant: AbstractJAVariant = PAPER_VARIANT, losses: Losses | None = None,
+                  substeps: int = DEFAULT_SUBSTEPS) -> FluxSimulation:
+    """The B-driven model (module docstring): H(t) and ∮ H dB for the flux density of
+    ``drive`` (a `FluxDrive`), any Jiles–Atherton form, loss coefficients ``losses``
+    (`jaxhyst.Losses`; none by default: the static inverse model). Only the magnetic
+    parameters (Ms, a, k, α̃, c) enter. Raises ``FloatingPointError`` naming the first
+    bad sample if the result is not finite."""
+    if not isinstance(drive, FluxDrive):
+        raise TypeError(f"drive must be a jaxhyst.FluxDrive (flux_from_record, "
+                        f"sinusoidal_flux …); got {type(drive).__name__}.")
+    if not isinstance(variant, AbstractJAVariant):
+        raise TypeError(f"variant must be a Jiles–Atherton form; got {variant!r}.")
+    if losses is not None and not isinstance(losses, Losses):
+        raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess); got {losses!r}.")
+    if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
+        raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
+    check_parameters(params)
+    sim = _simulate_flux_jit(params, drive, variant, losses, substeps)
+    finite = np.isfinite(np.asarray(sim.H))
+    if not finite.all():
+        i = int(np.flatnonzero(~finite)[0])
+        raise FloatingPointError(
+            f"The B-driven simulation diverged from sample {i} (t = {float(drive.t[i]):g} s, "
+            f"B = {float(drive.B[i]):g} T) on: the parameters or the flux density lie "
+            "outside the model's range (a B above μ0·(H + Ms) cannot be reached).")
+    return sim
+
+
+def sinusoidal_flux(frequency, amplitude, offset=0.0, **kwargs) -> FluxDrive:
+    """B(t) = offset + amplitude·sin(2πft) (T); keyword arguments (periods,
+    samples_per_period, run-in and ramp periods) as `jaxhyst.sinusoidal_field`."""
+    from ..drive import sinusoidal_field
+
+    return FluxDrive.of(sinusoidal_field(frequency, amplitude, offset, **kwargs))
+
+
+def flux_from_record(t, B, *, run_in_periods: int = 1, ramp_fraction: float = 0.25
+                     ) -> FluxDrive:
+    """A `FluxDrive` whose observed part is a measured record B(t) (T; t in s) spanning
+    whole periods, preceded by a ramp from B = 0 and ``run_in_periods`` copies of it
+    (`jaxhyst.drive_from_record`)."""
+    from ..drive import drive_from_record
+
+    return FluxDrive.of(drive_from_record(t, B, run_in_periods=run_in_periods,
+                                          ramp_fraction=ramp_fraction))
+
+
+def flux_from_period(t, B, *, run_in_periods: int = 1) -> FluxDrive:
+    """A `FluxDrive` for one period sampled without its end point (``t`` from 0 to T − dt,
+    as the MagNet data): the period is closed with its first sample at T, so that its
+    observed part is exactly one cycle."""
+    t, B = np.asarray(t, dtype=np.float64), np.asarray(B, dtype=np.float64)
+    if t.ndim != 1 or t.shape != B.shape or t.shape[0] < 4:
+        raise ValueError(f"a period needs 1-D t and B of equal length (>= 4); got shapes "
+                         f"{t.shape} and {B.shape}.")
+    dt = (t[-1] - t[0]) / (t.shape[0] - 1)
+    if not np.all(np.abs(np.diff(t) - dt) <= UNIFORM_TOLERANCE * dt):
+        raise ValueError("the samples of a period must be uniform in time.")
+    return flux_from_record(np.append(t, t[-1] + dt), np.append(B, B[0]),
+                            run_in_periods=run_in_periods)
