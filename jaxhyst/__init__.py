@@ -33,6 +33,8 @@ _EXPORTS = {
     **dict.fromkeys(("NAMES", "TABLE1_BOUNDS", "TABLE1_TRUE", "TABLE3", "UNITS", "Bounds",
                      "Parameters"), ".params"),
     **dict.fromkeys(("multistart", "run_hybrid", "solve"), ".fit"),
+    **dict.fromkeys(("ConditionModel", "ConditionProblem", "ConditionWarning", "Conditions",
+                     "condition_space", "per_record_space", "split_records"), ".identify"),
     **dict.fromkeys(("AbstractOutput", "AbstractProblem", "FluxProblem", "GaussianPrior",
                      "HybridGA", "IdentificationResult", "JointProblem", "JointSpace",
                      "ParameterSpace", "Problem", "RESULTS", "ResidualGroup", "ResidualProblem",

@@ -49,7 +49,13 @@ QUANTITIES = {
     "Man": ((), "anhysteretic magnetization", "A/m", _PER_M),
     "Mirr": ((), "irreversible magnetization", "A/m", _PER_M),
     "B": (("flux_density",), "flux density", "T", {"T": 1.0, "mT": 1e-3}),
+    "frequency": (("f", "freq"), "drive frequency of the loop", "Hz",
+                  {"Hz": 1.0, "kHz": 1e3}),
+    "temperature": (("temp",), "temperature of the loop", "°C", {"°C": 1.0, "C": 1.0}),
 }  # fmt: skip
+
+#: Per-loop conditions (constant within a loop; `Loop.conditions`).
+CONDITION_COLUMNS = ("frequency", "temperature")
 
 #: Signal columns → the `Problem` output they observe.
 SIGNAL_OUTPUTS = {"y": "displacement", "strain": "strain", "lambda": "magnetostriction",
@@ -65,13 +71,15 @@ class DataError(ValueError):
 @dataclass
 class Loop:
     """One measured loop, SI units: ``t`` (s) or ``None``, ``H`` (A/m) or ``None``, ``I``
-    (A) or ``None``, and the observed ``signals`` {quantity: samples}."""
+    (A) or ``None``, the observed ``signals`` {quantity: samples} and its
+    ``conditions`` {frequency (Hz), temperature (°C)} where the file has those columns."""
 
     index: int
     t: np.ndarray | None
     H: np.ndarray | None
     I: np.ndarray | None  # noqa: E741
     signals: dict = field(default_factory=dict)
+    conditions: dict = field(default_factory=dict)
 
     @property
     def n_samples(self) -> int:
@@ -224,8 +232,17 @@ def read_loops(path, columns: list[str] | str | None = None) -> list[Loop]:
             raise DataError(f"{path.name}: time is not increasing in loop {k:g} at sample "
                             f"{i + 1} (t = {t[i + 1]:g} s after {t[i]:g} s); sort the rows or "
                             "split the loops with a 'loop' column.")
+        conditions = {}
+        for q in CONDITION_COLUMNS:
+            if q in cols:
+                values = cols.pop(q)
+                if np.ptp(values) > 1e-9 * max(abs(float(values[0])), 1.0):
+                    raise DataError(f"{path.name}: the {q} of loop {k:g} changes within the "
+                                    f"loop ({values.min():g} … {values.max():g}); a loop has "
+                                    "one condition (split it with the 'loop' column).")
+                conditions[q] = float(values[0])
         loops.append(Loop(index=int(k), t=t, H=cols.pop("H", None), I=cols.pop("I", None),
-                          signals=cols))
+                          signals=cols, conditions=conditions))
     return loops
 
 

@@ -19,3 +19,7 @@ DEFAULT_SUBSTEPS = 2
 #: Output kinds that see the magnetization only (`jaxhyst.identify.outputs`: their
 #: ``magnetic_only``), for the command line, which decides before JAX is imported.
 MAGNETIC_OUTPUT_NAMES = ("magnetization", "flux_density")
+
+#: Features of a record's condition that parameters may vary with
+#: (`jaxhyst.identify.conditions.FEATURES`).
+CONDITION_FEATURES = ("log_f", "T", "log_amplitude")

@@ -325,9 +325,15 @@ def test_ctrl_c_stops_at_the_generation_keeps_best_and_resumes_exactly(
 
     path = tmp_path / "ctrl_c.npz"
     monkeypatch.setattr(hybrid, "_fcga_generation", interrupting)
-    with pytest.raises(jh.Interrupted) as caught:
-        jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
-                      checkpoint_every=100, report=False)
+    # Python's own Ctrl-C handler, as in a terminal: a background job of a shell
+    # (`pytest … &`) starts with SIGINT ignored, and the signal would then do nothing
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(jh.Interrupted) as caught:
+            jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, checkpoint=path,
+                          checkpoint_every=100, report=False)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     monkeypatch.setattr(hybrid, "_fcga_generation", real)
     part = caught.value.result
     assert isinstance(caught.value, KeyboardInterrupt)

@@ -16,6 +16,8 @@ from .spec import (
     build_problem,
     check_outputs,
     fixed_arg,
+    loop_conditions,
+    loop_drive,
     note,
     parameters_arg,
     print_result,
@@ -40,6 +42,15 @@ def add_parser(sub) -> None:
                         "problem (parameters shared unless listed in --per-loop)")
     parser.add_argument("--per-loop", help="with --joint: parameters free per loop, e.g. "
                         "'a,k,c'")
+    parser.add_argument("--vary", help="with --joint: parameters as smooth functions of the "
+                        "loops' conditions, e.g. 'k:log_f+T,c:log_amplitude' (features: "
+                        "log_f from a frequency column, T from a temperature column, "
+                        "log_amplitude from the loop's peak field); the others shared")
+    parser.add_argument("--vary-degree", type=POSITIVE_INT, default=1, choices=(1, 2),
+                        help="with --vary: 1 (linear in each feature) or 2 (quadratic)")
+    parser.add_argument("--leave-one-out", action="store_true",
+                        help="with --joint: also fit every loop but one and predict the one "
+                        "left out, for each loop; reports each held-out error")
     parser.add_argument("--variant", choices=VARIANTS, default="energy",
                         help="Jiles–Atherton form (energy: the paper's)")
     parser.add_argument("--columns", help="column names for a file without a header, "
@@ -125,12 +136,9 @@ def _start_params(args, p, problem):
 
 
 def run(args) -> int:
-    import numpy as np
-
     import jaxhyst as jh
     from jaxhyst._interrupt import stop_requested
     from jaxhyst.io import bounds_to_json, read_loops, write_json
-    from jaxhyst.progress import TextProgressMeter
 
     check_outputs(args)
     known = parameters_arg(args.params) if args.params else None
@@ -141,9 +149,15 @@ def run(args) -> int:
             "fixed": fixed_arg(args.fix, known),
             "run_in_periods": args.run_in_periods, "substeps": args.substeps,
             "variant": args.variant, "joint": args.joint,
-            "per_loop": [n.strip() for n in (args.per_loop or "").split(",") if n.strip()]}
-    if spec["per_loop"] and not args.joint:
-        raise CLIError("--per-loop needs --joint (several loops fitted together).")
+            "per_loop": [n.strip() for n in (args.per_loop or "").split(",") if n.strip()],
+            "vary": args.vary, "vary_degree": args.vary_degree}
+    for flag, value in (("--per-loop", spec["per_loop"]), ("--vary", args.vary),
+                        ("--leave-one-out", args.leave_one_out)):
+        if value and not args.joint:
+            raise CLIError(f"{flag} needs --joint (several loops fitted together).")
+    if args.leave_one_out and spec["per_loop"]:
+        raise CLIError("--leave-one-out predicts a loop from the others: its parameters must "
+                       "be shared or given by --vary, not --per-loop.")
     if args.method in HYBRID and args.start:
         raise CLIError("--start applies to the local solvers (e.g. --method lm); a hybrid GA "
                        "searches the whole box.")
@@ -160,6 +174,44 @@ def run(args) -> int:
                        "local solve (not checkpointed: rerun it).")
     if where and args.progress:  # (after every check of the input: errors stay one line)
         note("identify", where)
+    result = _fit(args, problem, method, start)
+    if stop_requested() and result.result != "interrupted":  # Ctrl-C during a local solve
+        result = result.with_outcome("interrupted")
+    d = result.to_dict()
+    d["problem"] = {**spec, "data": _portable_path(spec["data"], args.out)}
+    if isinstance(result.params, dict):  # a condition model: every coefficient
+        d["coefficients"] = {n: float(v) for n, v in result.params.items()}
+    if "history" in result.extra:
+        d["history"] = result.extra["history"]
+    held = _leave_one_out(args, spec, loops, method) if args.leave_one_out else None
+    if held is not None:
+        d["leave_one_out"] = held
+    if args.png:
+        _identify_figure(args, problem, result, has_t=loops[0].t is not None)
+    if args.out:
+        write_json(args.out, d)
+    if args.save_model:
+        fitted, params = joint_view(problem, result.params)
+        jh.save_model(args.save_model, fitted.model(params), data=spec["data"],
+                      outcome=result.result, rms_error=result.rms_error,
+                      output=result.output)
+    wrote = [f for f in (args.out, args.save_model) if f]
+    text = str(result) + (_held_out_text(held) if held else "") + \
+        "".join(f"\n  wrote {f}" for f in wrote)
+    print_result(args, d, text)
+    for w in result.warnings:
+        warn(args, w)
+    return _exit_status(result)
+
+
+def _fit(args, problem, method, start, quiet: bool = False):
+    """The fit the options ask for: a hybrid, one local solve, or a multi-start batch."""
+    import numpy as np
+
+    import jaxhyst as jh
+    from jaxhyst.progress import TextProgressMeter
+
+    progress = 0 if quiet else args.progress
     n = problem.space.n_free
     if method in HYBRID:
         settings = {k: v for k, v in (("T2", args.generations), ("q1", args.population),
@@ -168,45 +220,105 @@ def run(args) -> int:
             settings["q2"] = max(4, args.population // 4)
         if args.checkpoint is None and args.resume:
             raise CLIError("--resume needs --checkpoint FILE.")
-        meter = TextProgressMeter(every=args.progress) if args.progress else False
-        result = jh.run_hybrid(problem, method, seed=args.seed, settings=settings,
-                               progress=meter, checkpoint=args.checkpoint,
-                               checkpoint_every=args.checkpoint_every, resume=args.resume)
-    else:
-        meter = TextProgressMeter(every=0, interval=2.0) if args.progress else False
-        if args.start or args.starts <= 1:  # one start: an earlier result, or the box centre
-            start = _start_params(args, start, problem) if args.start else np.full(n, 0.5)
-            if args.progress:
-                note(method, "one start " + (f"from {args.start}" if args.start
-                                             else "at the centre of the box"))
-            result = jh.solve(problem, start, solver=method, max_steps=args.max_steps or 200,
-                              progress=meter)
+        meter = TextProgressMeter(every=progress) if progress else False
+        return jh.run_hybrid(problem, method, seed=args.seed, settings=settings,
+                             progress=meter, checkpoint=None if quiet else args.checkpoint,
+                             checkpoint_every=args.checkpoint_every,
+                             resume=args.resume and not quiet)
+    meter = TextProgressMeter(every=0, interval=2.0) if progress else False
+    if args.start or args.starts <= 1:  # one start: an earlier result, or the box centre
+        start = _start_params(args, start, problem) if args.start else np.full(n, 0.5)
+        if progress:
+            note(method, "one start " + (f"from {args.start}" if args.start
+                                         else "at the centre of the box"))
+        return jh.solve(problem, start, solver=method, max_steps=args.max_steps or 200,
+                        progress=meter)
+    starts = np.random.default_rng(args.seed).uniform(0.0, 1.0, (args.starts, n))
+    if progress:
+        note(method, f"{len(starts)} random starts in one vmapped batch")
+    return jh.multistart(problem, starts, solver=method, max_steps=args.max_steps or 200,
+                         progress=meter)
+
+
+def joint_view(problem, params):
+    """(the joint problem over the loops, its per-loop parameters) of a joint or
+    condition-model problem at ``params``."""
+    import jaxhyst as jh
+
+    if isinstance(problem, jh.ConditionProblem):
+        return problem.records, problem.per_record(params)
+    return problem, params
+
+
+def _leave_one_out(args, spec, loops, method) -> list[dict]:
+    """Fit every loop but one (as the whole fit was made) and predict the one left out,
+    for each loop: [{loop, rms, max_abs, data_scale, rms_fitted}] (the loop's unit)."""
+    import numpy as np
+
+    from jaxhyst._interrupt import stop_requested
+
+    rows = []
+    for i, held in enumerate(loops):
+        if stop_requested():
+            break
+        rest = [lp for j, lp in enumerate(loops) if j != i]
+        problem = build_problem(spec, rest)
+        note("leave-one-out", f"fitting without loop {held.index} ({len(rest)} loops) …")
+        result = _fit(args, problem, method, None, quiet=True)
+        predicted, data = predict_loops(spec, problem, result.params, [held])[0]
+        e = predicted - data
+        rows.append({"loop": held.index, "rms": float(np.sqrt(np.mean(e**2))),
+                     "max_abs": float(np.max(np.abs(e))),
+                     "data_scale": float(np.max(np.abs(data))),
+                     "rms_fitted": result.rms_error, "outcome": result.result})
+    return rows
+
+
+def _held_out_text(rows) -> str:
+    lines = ["\n  leave one loop out: the loop predicted from the others' fit"]
+    for r in rows:
+        lines.append(f"    loop {r['loop']}: rms {r['rms']:.4g} (max {r['max_abs']:.4g}; "
+                     f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|), the others' "
+                     f"fit rms {r['rms_fitted']:.4g}")
+    return "\n".join(lines)
+
+
+def predict_loops(spec, fitted, params, loops, conditions=None) -> list:
+    """The model's prediction and the data of each loop of ``loops`` (`jaxhyst.io.Loop`,
+    of the fitted data or new ones), from a fit of ``fitted`` (the problem built from
+    ``spec``) at ``params``: [(predicted, data or None)] in the fitted output's unit. A
+    condition model is evaluated at each loop's conditions (``conditions``:
+    {"frequency": …, "temperature": …} overriding the file's); shared joint parameters
+    are used as they are; a single-loop fit's parameters likewise."""
+    import numpy as np
+
+    import jaxhyst as jh
+    from jaxhyst.identify.outputs import output_kind
+    from jaxhyst.io import SIGNAL_OUTPUTS
+
+    records, _ = joint_view(fitted, params)
+    kind = output_kind(records.output if records.output != "mixed" else records.outputs[0])
+    actuator = records.actuator
+    out = []
+    for lp in loops:
+        if isinstance(fitted, jh.ConditionProblem):
+            p = fitted.at(params, loop_conditions(spec, [lp], actuator, conditions))
+            p = jh.Parameters.from_array(np.asarray(p.to_array())[0])
+        elif np.ndim(params.Ms) == 1:
+            values = np.asarray(params.to_array())
+            if np.ptp(values, axis=0).max() > 0:
+                raise CLIError("the fit has parameters per loop (--per-loop): it cannot "
+                               "predict another loop; fit with shared parameters or --vary.")
+            p = jh.Parameters.from_array(values[0])
         else:
-            starts = np.random.default_rng(args.seed).uniform(0.0, 1.0, (args.starts, n))
-            if args.progress:
-                note(method, f"{len(starts)} random starts in one vmapped batch")
-            result = jh.multistart(problem, starts, solver=method,
-                                   max_steps=args.max_steps or 200, progress=meter)
-    if stop_requested() and result.result != "interrupted":  # Ctrl-C during a local solve
-        result = result.with_outcome("interrupted")
-    d = result.to_dict()
-    d["problem"] = {**spec, "data": _portable_path(spec["data"], args.out)}
-    if "history" in result.extra:
-        d["history"] = result.extra["history"]
-    if args.png:
-        _identify_figure(args, problem, result, has_t=loops[0].t is not None)
-    if args.out:
-        write_json(args.out, d)
-    if args.save_model:
-        jh.save_model(args.save_model, problem.model(result.params), data=spec["data"],
-                      outcome=result.result, rms_error=result.rms_error,
-                      output=result.output)
-    wrote = [f for f in (args.out, args.save_model) if f]
-    text = str(result) + "".join(f"\n  wrote {f}" for f in wrote)
-    print_result(args, d, text)
-    for w in result.warnings:
-        warn(args, w)
-    return _exit_status(result)
+            p = params
+        name = next((q for q, k in SIGNAL_OUTPUTS.items() if k == kind.name), None)
+        drive = loop_drive(spec, lp, name or "B", actuator)
+        sim = jh.simulate(p, actuator, drive, records.variant, records.substeps)
+        predicted = np.asarray(drive.observed(kind.of(sim)))
+        data = lp.signals.get(name)
+        out.append((predicted, None if data is None else np.asarray(data)))
+    return out
 
 
 def _portable_path(path: str, out: str | None) -> str:
@@ -226,7 +338,8 @@ def _identify_figure(args, problem, result, has_t: bool) -> None:
 
     flags = (" — at bound: " + ", ".join(result.at_bound)) if result.at_bound else ""
     if args.joint:
-        pred = np.asarray(problem.predict_loops(result.params))
+        problem, params = joint_view(problem, result.params)
+        pred = np.asarray(problem.predict_loops(params))
         mask = np.asarray(problem.mask)
         H = np.asarray(problem.drive.H)[:, problem.drive.run_in:]
         plot_fit([H[i][mask[i]] for i in range(problem.n_loops)],

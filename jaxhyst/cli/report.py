@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 from .options import POSITIVE, POSITIVE_INT
-from .spec import CLIError, build_problem, check_outputs, print_result
+from .spec import check_outputs, load_result, print_result
 
 
 def add_parser(sub) -> None:
@@ -31,19 +31,9 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from jaxhyst.analysis import identifiability, profile_likelihood
-    from jaxhyst.io import parameters_from_json, read_json
 
     check_outputs(args)
-
-    saved = read_json(args.result)
-    if "problem" not in saved:
-        raise CLIError(f"{args.result} is not a jaxhyst identify result (no 'problem' entry).")
-    spec = dict(saved["problem"])
-    if not os.path.isabs(spec["data"]):  # stored relative to the result file
-        spec["data"] = os.path.join(os.path.dirname(os.path.abspath(args.result)),
-                                    spec["data"])
-    problem = build_problem(spec)
-    params = parameters_from_json(saved, f"parameters in {args.result}")
+    _, _, problem, params = load_result(args.result)
     rep = identifiability(problem, params, max_rel_se=args.max_rel_se)
     summary = {"identifiability": rep.to_dict(), "suggest_fixed": list(rep.suggest_fixed())}
     text = [str(rep), f"  to make the rest identifiable and determined to "

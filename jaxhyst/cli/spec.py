@@ -226,6 +226,81 @@ def loop_drive(spec, loop, out, actuator):
     return jh.drive_from_record(loop.t, H, run_in_periods=spec.get("run_in_periods", 1))
 
 
+#: The conditions a data file's columns give: feature → (column, unit).
+FEATURE_COLUMNS = {"log_f": ("frequency", "Hz"), "T": ("temperature", "°C")}
+
+
+def parse_vary(text) -> dict:
+    """``--vary 'k:log_f+T,c:log_amplitude'`` → ``{"k": ("log_f", "T"), "c": (…)}``."""
+    if not text:
+        return {}
+    from jaxhyst.names import CONDITION_FEATURES
+    from jaxhyst.params import NAMES
+
+    out = {}
+    for item in text.split(","):
+        name, _, feats = item.strip().partition(":")
+        name = name.strip()
+        feats = tuple(f.strip() for f in feats.split("+") if f.strip())
+        if name not in (*NAMES, "eddy", "excess"):
+            raise CLIError(f"--vary {item!r}: {name!r} is not a parameter; names are "
+                           f"{list(NAMES)}.")
+        bad = [f for f in feats if f not in CONDITION_FEATURES]
+        if not feats or bad:
+            raise CLIError(f"--vary {item!r}: give the features after a colon, joined by "
+                           f"'+', from {list(CONDITION_FEATURES)} (e.g. 'k:log_f+T').")
+        out[name] = feats
+    return out
+
+
+def loop_conditions(spec, loops, actuator, overrides=None):
+    """The `Conditions` of the loops: frequency and temperature from the file's columns
+    (where it has them; ``overrides`` {name: value} replaces them for every loop),
+    amplitude = the loop's peak field (A/m)."""
+    import numpy as np
+
+    import jaxhyst as jh
+
+    def column(q):
+        if (overrides or {}).get(q) is not None:
+            return [float(overrides[q])] * len(loops)
+        have = [lp.conditions.get(q) for lp in loops]
+        if all(v is None for v in have):
+            return None
+        missing = [lp.index for lp, v in zip(loops, have, strict=True) if v is None]
+        if missing:
+            raise CLIError(f"{spec['data']}: loops {missing} have no {q}; give every loop "
+                           f"its {q} (a '{q}' column).")
+        return have
+
+    amplitude = [float(np.max(np.abs(loop_field(lp, actuator, spec["data"])))) for lp in loops]
+    return jh.Conditions(frequency=column("frequency"), temperature=column("temperature"),
+                         amplitude=amplitude)
+
+
+def load_result(path):
+    """(saved JSON, its problem spec with the data path resolved, the rebuilt problem, the
+    fitted parameters) of a result file of ``jaxhyst identify --out``. The parameters are
+    the coefficient dict of a condition model (``--vary``), else a `Parameters`."""
+    import numpy as np
+
+    from jaxhyst.io import parameters_from_json, read_json
+
+    saved = read_json(path)
+    if "problem" not in saved:
+        raise CLIError(f"{path} is not a jaxhyst identify result (no 'problem' entry).")
+    spec = dict(saved["problem"])
+    if not os.path.isabs(spec["data"]):  # stored relative to the result file
+        spec["data"] = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(path)),
+                                                     spec["data"]))
+    problem = build_problem(spec)
+    if "coefficients" in saved:
+        params = {n: np.float64(v) for n, v in saved["coefficients"].items()}
+    else:
+        params = parameters_from_json(saved, f"parameters in {path}")
+    return saved, spec, problem, params
+
+
 def build_problem(spec: dict, loops=None):
     """A `Problem` (or `JointProblem` when ``spec["joint"]``) from the JSON-able ``spec``
     stored with every CLI result (so that ``jaxhyst report`` can rebuild it); ``loops``:
@@ -246,12 +321,35 @@ def build_problem(spec: dict, loops=None):
         out = loop_signal(spec, loops[0], spec.get("output"))
         if output_kind(SIGNAL_OUTPUTS[out]).magnetic_only:
             fixed = fix_structural(bounds, fixed)
-        space = jh.JointSpace(bounds, len(loops), per_loop=spec.get("per_loop") or (),
-                              fixed=fixed)
-        return jh.JointProblem([lp.signals[out] for lp in loops],
-                               [loop_drive(spec, lp, out, actuator) for lp in loops],
-                               actuator, space, output=SIGNAL_OUTPUTS[out], variant=variant,
-                               substeps=spec.get("substeps", DEFAULT_SUBSTEPS))
+        vary = parse_vary(spec.get("vary"))
+        per_loop = spec.get("per_loop") or ()
+        if vary and per_loop:
+            raise CLIError("--vary and --per-loop both say how parameters differ between "
+                           "loops; use one of them.")
+        if vary:  # (checked before the records: a missing column is the one message)
+            conditions = loop_conditions(spec, loops, actuator)
+            for name, feats in vary.items():
+                for f in feats:
+                    what, unit = FEATURE_COLUMNS.get(f, (None, None))
+                    if what and getattr(conditions, what) is None:
+                        raise CLIError(f"--vary {name}:{f}: {spec['data']} has no {what} "
+                                       f"column; add a '{what}' column ({unit}) or drop "
+                                       f"{f} from --vary.")
+        space = (jh.per_record_space(bounds, len(loops)) if vary else
+                 jh.JointSpace(bounds, len(loops), per_loop=per_loop, fixed=fixed))
+        records = jh.JointProblem([lp.signals[out] for lp in loops],
+                                  [loop_drive(spec, lp, out, actuator) for lp in loops],
+                                  actuator, space, output=SIGNAL_OUTPUTS[out],
+                                  variant=variant,
+                                  substeps=spec.get("substeps", DEFAULT_SUBSTEPS))
+        if not vary:
+            return records
+        model = jh.ConditionModel(vary, int(spec.get("vary_degree", 1)))
+        try:
+            cspace = jh.condition_space(bounds, model, fixed=fixed)
+            return jh.ConditionProblem(records, conditions, model, cspace)
+        except ValueError as err:
+            raise CLIError(f"--vary: {err}") from None
     if spec.get("loop") is None:
         if len(loops) > 1:
             raise CLIError(f"{spec['data']} holds loops {ids}; choose one with --loop, or fit "

@@ -6,6 +6,15 @@ immutable results. The identifiability report is attached one level up (`jaxhyst
 from ._objective import jacobian_linearized
 from ._stepped import solve_traced
 from .checkpoint import CheckpointError
+from .conditions import (
+    ConditionModel,
+    ConditionProblem,
+    Conditions,
+    ConditionWarning,
+    condition_space,
+    per_record_space,
+    split_records,
+)
 from .flux import FluxProblem
 from .hybrid import HYBRIDS, GAState, HybridGA
 from .joint import JointProblem, JointSpace, loop_problem
@@ -30,6 +39,10 @@ __all__ = [
     "AbstractOutput",
     "AbstractProblem",
     "CheckpointError",
+    "ConditionModel",
+    "ConditionProblem",
+    "ConditionWarning",
+    "Conditions",
     "FluxProblem",
     "GAState",
     "GaussianPrior",
@@ -53,14 +66,17 @@ __all__ = [
     "SamplingWarning",
     "TwoDimensionalSubspaceDescent",
     "hybrid_method",
+    "condition_space",
     "jacobian_linearized",
     "loop_problem",
     "make_solver",
     "multistart",
     "outcome_name",
+    "per_record_space",
     "output_kind",
     "run_hybrid",
     "solve",
+    "split_records",
     "solve_traced",
     "start_z",
     "synthetic_problem",

@@ -66,7 +66,7 @@ class FluxProblem(AbstractProblem):
     drive: FluxDrive
     space: ParameterSpace
     output: str = eqx.field(static=True)
-    scales: tuple = eqx.field(static=True)
+    scales: jax.Array  # (L,) max|data| per record (data: new data do not recompile)
     variant: AbstractJAVariant = PAPER_VARIANT
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
     sigma: float | None = eqx.field(static=True, default=None)
@@ -100,7 +100,7 @@ class FluxProblem(AbstractProblem):
         if np.any(scales == 0):
             raise ValueError("a record's field data are identically zero; nothing to fit.")
         self.data, self.drive, self.space = jnp.asarray(data), drive, space
-        self.output, self.scales = output, tuple(float(s) for s in scales)
+        self.output, self.scales = output, jnp.asarray(scales, dtype=jnp.float64)
         self.variant, self.substeps = variant, int(substeps)
         self.sigma = None if sigma is None else float(sigma)
         self.priors = tuple(priors)
@@ -108,7 +108,7 @@ class FluxProblem(AbstractProblem):
 
     @property
     def n_records(self) -> int:
-        return len(self.scales)
+        return int(self.scales.shape[0])
 
     def simulate(self, params):
         """The `FluxSimulation` of every record (leaves with a leading axis L)."""
@@ -131,8 +131,9 @@ class FluxProblem(AbstractProblem):
     def groups(self) -> tuple[ResidualGroup, ...]:
         if self.output == "field":
             return tuple(ResidualGroup(f"record {i} (field)", int(self.data.shape[1]), "A/m",
-                                       self.sigma, scale=s, data_size=s)
-                         for i, s in enumerate(self.scales))
+                                       self.sigma, scale=self.scales[i],
+                                       data_size=self.scales[i])
+                         for i in range(self.n_records))
         return (ResidualGroup("cycle energy (relative)", self.n_records, "1", self.sigma),)
 
     def group_residuals(self, params) -> tuple:

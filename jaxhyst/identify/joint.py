@@ -114,7 +114,7 @@ class JointProblem(AbstractProblem):
     actuator: Actuator
     space: ParameterSpace
     mask: tuple = eqx.field(static=True)
-    scales: tuple = eqx.field(static=True)
+    scales: jax.Array  # (L,) max|data| of each loop (data: a new data set does not recompile)
     outputs: tuple = eqx.field(static=True)
     sigmas: tuple = eqx.field(static=True)
     variant: AbstractJAVariant = PAPER_VARIANT
@@ -144,7 +144,8 @@ class JointProblem(AbstractProblem):
         scales = []
         for i, (y, d) in enumerate(zip(data, drives, strict=True)):
             try:
-                scales.append(Problem(y, d, actuator, single, output=outputs[i]).scale)
+                scales.append(Problem(y, d, actuator, single, output=outputs[i],
+                                      substeps=substeps).scale)
             except ValueError as err:
                 raise ValueError(f"Loop {i}: {err}") from None
         drive, mask = _pad_drives(drives)
@@ -155,7 +156,7 @@ class JointProblem(AbstractProblem):
         self.mask = tuple(map(tuple, mask.tolist()))
         self.padded = jnp.asarray(padded)
         self.data = jnp.asarray(padded[mask])
-        self.scales = tuple(float(s) for s in scales)
+        self.scales = jnp.asarray(scales, dtype=jnp.float64)
         self.outputs = outputs
         self.sigmas = tuple(None if s is None else float(s) for s in sigmas)
         self.actuator = actuator

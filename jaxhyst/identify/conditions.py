@@ -1,0 +1,382 @@
+"""Parameters as smooth functions of the operating condition: frequency, temperature, and
+the loop's amplitude — one set of coefficients for all the records of a material, so that
+the model predicts a condition it was not fitted to.
+
+**The form.** Each record (a loop, a measured period) has a condition: frequency f (Hz),
+temperature T (°C) and amplitude A (the record's peak field, A/m, or peak flux density,
+T), as far as the data carry them. Its features are
+
+    ln(f/f_ref),   (T − T_ref)/(10 K),   ln(A/A_ref)
+
+(the references: the geometric mean of the fitted frequencies and amplitudes, the mean
+temperature), and a chosen parameter θ varies with the chosen features x_j as
+
+    θ = θ_ref · exp(Σ_j s_j·x_j [+ q_j·x_j²])   (a parameter ≥ 0: Ms, a, k, λs, E, Kz,
+                                                 Mz, Cz and the loss coefficients),
+    θ = θ_ref + Σ_j s_j·x_j [+ q_j·x_j²]        (α̃ and c; c kept in [0, 1]),
+
+so that a frequency dependence is a power law θ ∝ f^s and a temperature dependence an
+exponential. The others are shared. The coefficients θ_ref, s_j (and q_j with
+``degree=2``) are the free parameters of a `ConditionProblem`, named ``k``,
+``k:log_f``, ``k:T``, ``k:log_amplitude`` (``…^2``), identified jointly from the records
+with every solver and reported with their intervals by the identifiability report.
+
+**The amplitude form** (`ConditionModel` with ``{"k": ("log_amplitude",), …}``) is the
+remedy for the Jiles–Atherton minor-loop problem that parametrises the pinning and
+reversibility by the loop's peak field (one parameter set does not carry over between
+loops of different amplitude: how wide and how reversible a loop is depends on how far
+it is driven). It is judged only by held-out loops: `benchmarks/bench_amplitude.py`,
+with its results in benchmarks/RESULTS.md — it interpolates between amplitudes, it does
+not extrapolate beyond them.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..model.losses import LOSS_NAMES, Losses
+from ..names import CONDITION_FEATURES
+from ..params import NAMES, Bounds, Parameters
+from .flux import FluxProblem
+from .problem import AbstractProblem, ResidualGroup
+from .space import ParameterSpace
+
+#: The features a condition provides: name → (what, unit of the raw condition).
+FEATURES = {"log_f": ("frequency", "Hz"), "T": ("temperature", "°C"),
+            "log_amplitude": ("amplitude", "A/m or T")}
+assert tuple(FEATURES) == CONDITION_FEATURES
+
+#: Parameters that vary additively (the others multiplicatively: they are ≥ 0).
+ADDITIVE = ("alpha", "c")
+#: Default box of a coefficient s_j or q_j (per unit feature: a power of f within ±3).
+SLOPE_BOX = (-3.0, 3.0)
+
+
+class ConditionWarning(UserWarning):
+    """A prediction asked outside the fitted conditions (an extrapolation)."""
+
+
+@dataclass(frozen=True)
+class Conditions:
+    """The conditions of L records: ``frequency`` (Hz), ``temperature`` (°C),
+    ``amplitude`` (A/m or T), each a sequence of L values or None when the data do not
+    carry it."""
+
+    frequency: tuple | None = None
+    temperature: tuple | None = None
+    amplitude: tuple | None = None
+
+    def __post_init__(self):
+        lengths = set()
+        for name in ("frequency", "temperature", "amplitude"):
+            values = getattr(self, name)
+            if values is None:
+                continue
+            v = np.atleast_1d(np.asarray(values, dtype=np.float64))
+            if v.ndim != 1 or not np.all(np.isfinite(v)):
+                raise ValueError(f"Conditions.{name} must be a sequence of finite numbers; "
+                                 f"got {values!r}.")
+            if name != "temperature" and np.any(v <= 0):
+                raise ValueError(f"Conditions.{name} must be > 0 ({FEATURES[_KEY[name]][1]}); "
+                                 f"got {v[v <= 0][0]:g}.")
+            object.__setattr__(self, name, tuple(float(x) for x in v))
+            lengths.add(v.shape[0])
+        if len(lengths) > 1:
+            raise ValueError(f"Conditions: give one value per record for every condition; "
+                             f"got lengths {sorted(lengths)}.")
+
+    @property
+    def n_records(self) -> int:
+        for name in ("frequency", "temperature", "amplitude"):
+            if getattr(self, name) is not None:
+                return len(getattr(self, name))
+        return 0
+
+    def raw(self, feature: str) -> np.ndarray | None:
+        values = getattr(self, FEATURES[feature][0])
+        return None if values is None else np.asarray(values, dtype=np.float64)
+
+
+_KEY = {"frequency": "log_f", "temperature": "T", "amplitude": "log_amplitude"}
+
+
+@dataclass(frozen=True)
+class ConditionModel:
+    """Which parameters vary with which features (module docstring): ``varying`` is
+    ``{parameter name: (feature, …)}`` with features of `FEATURES`; ``degree`` 1 (linear
+    in each feature) or 2 (with its square). The references are set from the fitted
+    conditions (`fitted_to`). Immutable and hashable (it is static structure of a
+    problem)."""
+
+    varying: tuple = ()
+    degree: int = 1
+    reference: tuple = ()
+    fitted_range: tuple = ()
+
+    def __init__(self, varying: Mapping | tuple = (), degree: int = 1,
+                 reference: Mapping | tuple = (), fitted_range: Mapping | tuple = ()):
+        pairs = []
+        for name, feats in dict(varying).items():
+            feats = (feats,) if isinstance(feats, str) else tuple(feats)
+            if name not in (*NAMES, *LOSS_NAMES):
+                raise ValueError(f"ConditionModel: {name!r} is not a parameter (names: "
+                                 f"{list(NAMES) + list(LOSS_NAMES)}).")
+            bad = [f for f in feats if f not in FEATURES]
+            if bad or not feats:
+                raise ValueError(f"ConditionModel: {name} varies with {list(feats)}; the "
+                                 f"features are {list(FEATURES)}.")
+            pairs.append((name, feats))
+        if degree not in (1, 2):
+            raise ValueError(f"ConditionModel.degree must be 1 or 2; got {degree!r}.")
+        object.__setattr__(self, "varying", tuple(pairs))
+        object.__setattr__(self, "degree", int(degree))
+        object.__setattr__(self, "reference", tuple(dict(reference).items()))
+        object.__setattr__(self, "fitted_range", tuple(dict(fitted_range).items()))
+
+    @property
+    def varies(self) -> dict:
+        """``{name: (feature, …)}``."""
+        return dict(self.varying)
+
+    @property
+    def features(self) -> tuple[str, ...]:
+        """The features used, in a fixed order."""
+        return tuple(f for f in FEATURES if any(f in v for v in self.varies.values()))
+
+    def coefficient_names(self) -> list[str]:
+        """Names of the coefficients beyond the reference values: ``k:log_f`` …"""
+        out = []
+        for name, feats in self.varying:
+            for f in feats:
+                out.append(f"{name}:{f}")
+                if self.degree == 2:
+                    out.append(f"{name}:{f}^2")
+        return out
+
+    def fitted_to(self, conditions: Conditions) -> ConditionModel:
+        """This model with its references (and the fitted range, for warnings) from the
+        conditions of the records it is fitted to."""
+        ref, rng = {}, {}
+        for f in self.features:
+            raw = conditions.raw(f)
+            if raw is None:
+                users = [n for n, v in self.varying if f in v]
+                raise ValueError(f"{users} vary with the {FEATURES[f][0]}, but the records "
+                                 f"carry no {FEATURES[f][0]} ({FEATURES[f][1]}); give it in "
+                                 "Conditions or drop it from the ConditionModel.")
+            ref[f] = float(np.mean(raw)) if f == "T" else float(np.exp(np.mean(np.log(raw))))
+            rng[f] = (float(np.min(raw)), float(np.max(raw)))
+        return ConditionModel(self.varies, self.degree, ref, rng)
+
+    def feature_values(self, conditions: Conditions) -> np.ndarray:
+        """The features of each record, shape (L, F) in the order of `features`."""
+        cols = []
+        for f in self.features:
+            raw = conditions.raw(f)
+            if raw is None:
+                raise ValueError(f"the conditions lack the {FEATURES[f][0]} "
+                                 f"({FEATURES[f][1]}) that the fitted model varies with.")
+            ref = dict(self.reference)[f]
+            cols.append((raw - ref) / 10.0 if f == "T" else np.log(raw / ref))
+        return np.stack(cols, axis=-1) if cols else np.zeros((conditions.n_records, 0))
+
+    def warn_outside(self, conditions: Conditions) -> None:
+        """A `ConditionWarning` for each condition outside the fitted range, saying how far."""
+        for f in self.features:
+            raw, (lo, hi) = conditions.raw(f), dict(self.fitted_range)[f]
+            for v in raw:
+                if lo <= v <= hi:
+                    continue
+                what, unit = FEATURES[f]
+                if f == "T":
+                    far = f"{min(abs(v - lo), abs(v - hi)):.3g} K"
+                else:
+                    far = f"a factor {max(v / hi, lo / v):.3g}"
+                warnings.warn(f"a prediction at {what} {v:g} {unit} lies outside the fitted "
+                              f"range {lo:g}–{hi:g} {unit} ({far} beyond it): an "
+                              "extrapolation.", ConditionWarning, stacklevel=3)
+
+    def evaluate(self, coefficients: Mapping, X):
+        """Per-record values {name: (L,)} of every parameter the coefficients hold, at
+        features X (L, F)."""
+        X = jnp.asarray(X)
+        col = {f: X[:, i] for i, f in enumerate(self.features)}
+        L = X.shape[0]
+        out = {}
+        for name, ref in coefficients.items():
+            if ":" in name:
+                continue
+            exponent = jnp.zeros((L,), dtype=jnp.float64)
+            for f in self.varies.get(name, ()):
+                exponent = exponent + coefficients[f"{name}:{f}"] * col[f]
+                if self.degree == 2:
+                    exponent = exponent + coefficients[f"{name}:{f}^2"] * col[f] ** 2
+            if name in ADDITIVE:
+                value = ref + exponent
+                out[name] = jnp.clip(value, 0.0, 1.0) if name == "c" else value
+            else:
+                out[name] = ref * jnp.exp(exponent)
+        return out
+
+
+def condition_space(bounds: Bounds, model: ConditionModel, fixed: Mapping | None = None,
+                    losses: Mapping | None = None, slope_bounds: Mapping | None = None
+                    ) -> ParameterSpace:
+    """The space of a `ConditionProblem`'s coefficients: the reference values of the ten
+    parameters in ``bounds`` (and of the loss coefficients in the box ``losses``
+    ``{name: (lower, upper)}``, a coefficient left out held at 0, when given), and each
+    coefficient of ``model.coefficient_names()`` in `SLOPE_BOX` unless ``slope_bounds``
+    names it. ``fixed``: ``{name: value}`` of any of them held fixed."""
+    names = [*NAMES, *(LOSS_NAMES if losses is not None else ())]
+    lo = dict(zip(NAMES, np.asarray(bounds.lower.to_array(), float).tolist(), strict=True))
+    hi = dict(zip(NAMES, np.asarray(bounds.upper.to_array(), float).tolist(), strict=True))
+    fixed = dict(fixed or {})
+    if losses is not None:
+        unknown = sorted(set(losses) - set(LOSS_NAMES))
+        if unknown:
+            raise ValueError(f"losses: unknown coefficients {unknown}; they are "
+                             f"{list(LOSS_NAMES)}.")
+        for n in LOSS_NAMES:
+            lo[n], hi[n] = (float(v) for v in losses.get(n, (0.0, 0.0)))
+            if n not in losses:
+                fixed.setdefault(n, 0.0)
+    for n in model.varies:
+        if n not in names:
+            raise ValueError(f"{n} varies in the ConditionModel but is not a parameter of "
+                             "this space (pass losses= for the loss coefficients).")
+    for c in model.coefficient_names():
+        names.append(c)
+        lo[c], hi[c] = (slope_bounds or {}).get(c, SLOPE_BOX)
+    unknown = sorted(set(fixed) - set(names))
+    if unknown:
+        raise ValueError(f"Cannot fix unknown parameter(s) {unknown}; names are {names}.")
+    lower = {n: np.float64(lo[n]) for n in names}
+    upper = {n: np.float64(hi[n]) for n in names}
+    return ParameterSpace.for_tree(lower, upper, fixed=fixed)
+
+
+class ConditionProblem(AbstractProblem):
+    """A problem over L records (a `JointProblem` or a `FluxProblem`, whose parameters
+    have one value per record) whose parameters are the smooth functions of the records'
+    conditions of a `ConditionModel` (module docstring). Its parameter pytree is the
+    coefficient dict of `condition_space`; residual groups, data and output are the
+    records problem's.
+
+    **Arguments:** ``records``: the problem over the records; ``conditions``: their
+    `Conditions`; ``model``: the `ConditionModel` (its references are set from these
+    conditions); ``space``: from `condition_space`.
+    """
+
+    records: AbstractProblem
+    space: ParameterSpace
+    form: ConditionModel = eqx.field(static=True)  # (without its references)
+    reference: jax.Array  # (F,) the features' references (data: no recompile per fold)
+    fitted_range: jax.Array  # (F, 2) the fitted conditions' range, raw units
+    features: jax.Array  # (L, F) the fitted records' features
+    losses: bool = eqx.field(static=True)
+    priors: tuple = eqx.field(static=True, default=())
+
+    def __init__(self, records: AbstractProblem, conditions: Conditions,
+                 model: ConditionModel, space: ParameterSpace):
+        if not isinstance(conditions, Conditions):
+            raise TypeError("conditions must be jaxhyst.Conditions(frequency=…, "
+                            "temperature=…, amplitude=…).")
+        L = conditions.n_records
+        n_records = records.n_records if isinstance(records, FluxProblem) else \
+            len(records.groups)
+        if L != n_records:
+            raise ValueError(f"{L} conditions for {n_records} records: give one per record.")
+        fitted = model.fitted_to(conditions)
+        self.form = ConditionModel(model.varies, model.degree)
+        ref, rng = dict(fitted.reference), dict(fitted.fitted_range)
+        self.reference = jnp.asarray([ref[f] for f in fitted.features], dtype=jnp.float64)
+        self.fitted_range = jnp.asarray([rng[f] for f in fitted.features],
+                                        dtype=jnp.float64).reshape(-1, 2)
+        self.features = jnp.asarray(fitted.feature_values(conditions))
+        self.records, self.space = records, space
+        self.losses = any(n in space.flat_names for n in LOSS_NAMES)
+        self.priors = ()
+
+    @property
+    def condition_model(self) -> ConditionModel:
+        """The `ConditionModel` with the references and range of the fitted conditions."""
+        feats = self.form.features
+        ref = np.asarray(self.reference).tolist()
+        rng = [tuple(r) for r in np.asarray(self.fitted_range).tolist()]
+        return ConditionModel(self.form.varies, self.form.degree,
+                              dict(zip(feats, ref, strict=True)),
+                              dict(zip(feats, rng, strict=True)))
+
+    @property
+    def output(self) -> str:
+        return self.records.output
+
+    @property
+    def groups(self) -> tuple[ResidualGroup, ...]:
+        return self.records.groups
+
+    def parameters_at(self, coefficients, X):
+        """The records problem's parameter pytree (leaves (L,)) at features X (L, F)."""
+        values = self.form.evaluate(coefficients, X)
+        p = Parameters(**{n: values[n] for n in NAMES})
+        return (p, Losses(values["eddy"], values["excess"])) if self.losses else p
+
+    def per_record(self, coefficients):
+        """The parameters of every fitted record."""
+        return self.parameters_at(coefficients, self.features)
+
+    def at(self, coefficients, conditions: Conditions):
+        """The parameters at other ``conditions`` (a prediction; a `ConditionWarning` when
+        they lie outside the fitted range)."""
+        model = self.condition_model
+        model.warn_outside(conditions)
+        return self.parameters_at(coefficients, model.feature_values(conditions))
+
+    def held_out_errors(self, coefficients, records: AbstractProblem,
+                        conditions: Conditions) -> list[float]:
+        """The rms error (model − data, each record's unit) of every record of ``records``
+        (a problem of the same kind over records that were not fitted: their data and
+        drives) predicted at their ``conditions``: the held-out error of a prediction."""
+        residuals = records.group_residuals(self.at(coefficients, conditions))
+        return [float(jnp.sqrt(jnp.mean(jnp.ravel(r) ** 2))) for r in residuals]
+
+    def group_residuals(self, params) -> tuple:
+        return self.records.group_residuals(self.per_record(params))
+
+    @property
+    def observations(self):
+        return self.records.observations
+
+    def with_data(self, data) -> ConditionProblem:
+        return eqx.tree_at(lambda q: q.records, self, self.records.with_data(data))
+
+
+def per_record_space(bounds: Bounds, n_records: int, losses: Mapping | None = None
+                     ) -> ParameterSpace:
+    """A space over one parameter set per record (leaves (L,)), every entry free: what a
+    records problem is built with before a `ConditionProblem` replaces its parameters."""
+    if losses is None:
+        return ParameterSpace.for_loops(bounds, n_records, per_loop=NAMES)
+    lower = (Parameters.from_array(np.tile(np.asarray(bounds.lower.to_array()), (n_records, 1))),
+             Losses(np.zeros(n_records), np.zeros(n_records)))
+    upper = (Parameters.from_array(np.tile(np.asarray(bounds.upper.to_array()), (n_records, 1))),
+             Losses(np.full(n_records, 1e9), np.full(n_records, 1e9)))
+    return ParameterSpace.for_tree(lower, upper)
+
+
+def split_records(n: int, held_out: int | Sequence[int]) -> tuple[list[int], list[int]]:
+    """(fitted, held-out) record indices of ``n`` records; ``held_out`` an index or several.
+    One-line error for an index that is not a record."""
+    out = [held_out] if isinstance(held_out, (int, np.integer)) else list(held_out)
+    bad = [i for i in out if not 0 <= int(i) < n]
+    if bad:
+        raise ValueError(f"held-out record(s) {bad} are not among the {n} records "
+                         f"(0 … {n - 1}).")
+    return [i for i in range(n) if i not in out], [int(i) for i in out]
