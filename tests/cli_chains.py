@@ -44,7 +44,7 @@ def resume(d):
     ck = os.path.join(d, "run.npz")
     run(["simulate", "--samples-per-period", "50", "--csv", csv], os.path.join(d, "sim.log"))
     args = ["identify", csv, "--output", "y", "--method", "GATR1", "--population", "24",
-            "--generations", "400", "--max-steps", "20", "--checkpoint", ck,
+            "--generations", "405", "--max-steps", "20", "--checkpoint", ck,
             "--checkpoint-every", "1", "--progress", "1", "--seed", "5",
             "--out", os.path.join(d, "result.json")]
     log = open(os.path.join(d, "first.log"), "w")

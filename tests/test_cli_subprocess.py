@@ -55,11 +55,12 @@ def test_identify_killed_midway_resumes_from_its_checkpoint():
     assert status["second"] == 0, _log(d, "second.log")
     with open(os.path.join(d, "result.json")) as fh:
         res = json.load(fh)
-    assert len(res["history"]) == 5 + 400  # T1 + T2 generations, none lost or repeated
+    assert len(res["history"]) == 405  # --generations in all, none lost or repeated
     gens = [h["generation"] for h in res["history"]]
     assert gens == list(range(1, 406))
     second = _log(d, "second.log")
     assert "generation 1/" not in second  # it continued, not restarted
+    assert "/405 " in _log(d, "first.log")  # the count asked for is the count shown
     assert np.isfinite(res["cost"])
 
 
@@ -162,6 +163,7 @@ def test_measured_loop_default_command_bounds_stops_and_start():
     assert first["success"] and first["at_bound"] == {} and first["warnings"] == []
     assert first["problem"]["data"] == "loop.csv"  # relative to the result file
     assert os.path.getsize(os.path.join(d, "fit.png")) > 0
+    assert f"wrote {os.path.join(d, 'fit.png')}" in log  # every file written is announced
     log = _log(d, "at_bound.log")
     assert status["at_bound"] == 4, log
     assert "warning: k ended at its lower bound 12.5" in log and "AT LOWER BOUND" in log

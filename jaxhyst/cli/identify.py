@@ -74,8 +74,8 @@ def add_parser(sub) -> None:
                         "one start at the centre of the box)")
     parser.add_argument("--max-steps", type=POSITIVE_INT,
                         help="local solver iterations (hybrids: T3)")
-    parser.add_argument("--generations", type=POSITIVE_INT, help="hybrids: FCGA generations T2 "
-                        "(paper 295)")
+    parser.add_argument("--generations", type=POSITIVE_INT, help="hybrids: generations in "
+                        "all, T1 + T2 (paper 300: 5 binary-coded, then 295 real-coded)")
     parser.add_argument("--population", type=POSITIVE_INT,
                         help="hybrids: BCGA population q1 (paper 120; q2 = q1/4)")
     parser.add_argument("--seed", type=COUNT, default=0,
@@ -186,8 +186,8 @@ def run(args) -> int:
     held = _leave_one_out(args, spec, loops, method) if args.leave_one_out else None
     if held is not None:
         d["leave_one_out"] = held
-    if args.png:
-        _identify_figure(args, problem, result, has_t=loops[0].t is not None)
+    figures = _identify_figure(args, problem, result, has_t=loops[0].t is not None) \
+        if args.png else []
     if args.out:
         write_json(args.out, d)
     if args.save_model:
@@ -195,7 +195,7 @@ def run(args) -> int:
         jh.save_model(args.save_model, fitted.model(params), data=spec["data"],
                       outcome=result.result, rms_error=result.rms_error,
                       output=result.output)
-    wrote = [f for f in (args.out, args.save_model) if f]
+    wrote = [f for f in (args.out, args.save_model, *figures) if f]
     text = str(result) + (_held_out_text(held) if held else "") + \
         "".join(f"\n  wrote {f}" for f in wrote)
     print_result(args, d, text)
@@ -214,8 +214,17 @@ def _fit(args, problem, method, start, quiet: bool = False):
     progress = 0 if quiet else args.progress
     n = problem.space.n_free
     if method in HYBRID:
-        settings = {k: v for k, v in (("T2", args.generations), ("q1", args.population),
-                                      ("T3", args.max_steps)) if v is not None}
+        settings = {k: v for k, v in (("q1", args.population), ("T3", args.max_steps))
+                    if v is not None}
+        if args.generations is not None:  # in all: the binary-coded T1 first
+            from jaxhyst.identify import hybrid_method
+
+            T1 = int(hybrid_method(method).T1)
+            if args.generations <= T1:
+                raise CLIError(f"--generations {args.generations}: a hybrid runs {T1} "
+                               "binary-coded generations first; give more than that (the "
+                               "generations in all).")
+            settings["T2"] = args.generations - T1
         if args.population is not None:
             settings["q2"] = max(4, args.population // 4)
         if args.checkpoint is None and args.resume:
@@ -331,7 +340,9 @@ def _portable_path(path: str, out: str | None) -> str:
         return path
 
 
-def _identify_figure(args, problem, result, has_t: bool) -> None:
+def _identify_figure(args, problem, result, has_t: bool) -> list[str]:
+    """Draw the fit into ``args.png`` (and a hybrid's history beside it); the files
+    written."""
     import numpy as np
 
     from jaxhyst.plots import plot_fit, plot_history
@@ -346,7 +357,7 @@ def _identify_figure(args, problem, result, has_t: bool) -> None:
                  [np.asarray(problem.padded)[i][mask[i]] for i in range(problem.n_loops)],
                  [pred[i][mask[i]] for i in range(problem.n_loops)], problem.output, args.png,
                  title=f"{result.solver}: {problem.n_loops} loops fitted jointly{flags}")
-        return
+        return [args.png]
     pred = np.asarray(problem.predict(result.params))
     plot_fit(problem.drive.observed(problem.drive.H), problem.data, pred, problem.output,
              args.png, t=problem.drive.observed(problem.drive.t) if has_t else None,
@@ -357,6 +368,8 @@ def _identify_figure(args, problem, result, has_t: bool) -> None:
         hist_png = str(Path(args.png).with_name(Path(args.png).stem + "_history.png"))
         plot_history(result.extra["history"], problem.space.names, problem.space.lower,
                      problem.space.upper, hist_png, title=result.solver + flags)
+        return [args.png, hist_png]
+    return [args.png]
 
 
 def _exit_status(result) -> int:
