@@ -20,6 +20,7 @@ DEFAULT_SUBSTEPS = 2
 #: ``magnetic_only``), for the command line, which decides before JAX is imported.
 MAGNETIC_OUTPUT_NAMES = ("magnetization", "flux_density")
 
-#: Features of a record's condition that parameters may vary with
-#: (`jaxhyst.identify.conditions.FEATURES`).
-CONDITION_FEATURES = ("log_f", "T", "log_amplitude")
+#: Features of a record's condition that parameters may vary with: name → (the condition
+#: it comes from, that condition's unit) (`jaxhyst.identify.conditions.FEATURES`).
+CONDITION_FEATURES = {"log_f": ("frequency", "Hz"), "T": ("temperature", "°C"),
+                      "log_amplitude": ("amplitude", "A/m or T")}

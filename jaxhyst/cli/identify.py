@@ -249,20 +249,33 @@ def _fit(args, problem, method, start, quiet: bool = False):
                          progress=meter)
 
 
+def records_of(problem):
+    """The problem over the loops themselves: a condition model's records problem, else
+    the problem."""
+    import jaxhyst as jh
+
+    return problem.records if isinstance(problem, jh.ConditionProblem) else problem
+
+
 def joint_view(problem, params):
     """(the joint problem over the loops, its per-loop parameters) of a joint or
     condition-model problem at ``params``."""
-    import jaxhyst as jh
+    records = records_of(problem)
+    return records, (params if records is problem else problem.per_record(params))
 
-    if isinstance(problem, jh.ConditionProblem):
-        return problem.records, problem.per_record(params)
-    return problem, params
+
+def error_summary(predicted, data) -> dict:
+    """{rms, max_abs, data_scale} of predicted − data (the data's unit)."""
+    import numpy as np
+
+    e = np.asarray(predicted) - np.asarray(data)
+    return {"rms": float(np.sqrt(np.mean(e**2))), "max_abs": float(np.max(np.abs(e))),
+            "data_scale": float(np.max(np.abs(data)))}
 
 
 def _leave_one_out(args, spec, loops, method) -> list[dict]:
     """Fit every loop but one (as the whole fit was made) and predict the one left out,
     for each loop: [{loop, rms, max_abs, data_scale, rms_fitted}] (the loop's unit)."""
-    import numpy as np
 
     from jaxhyst._interrupt import stop_requested
 
@@ -275,10 +288,7 @@ def _leave_one_out(args, spec, loops, method) -> list[dict]:
         note("leave-one-out", f"fitting without loop {held.index} ({len(rest)} loops) …")
         result = _fit(args, problem, method, None, quiet=True)
         predicted, data = predict_loops(spec, problem, result.params, [held])[0]
-        e = predicted - data
-        rows.append({"loop": held.index, "rms": float(np.sqrt(np.mean(e**2))),
-                     "max_abs": float(np.max(np.abs(e))),
-                     "data_scale": float(np.max(np.abs(data))),
+        rows.append({"loop": held.index, **error_summary(predicted, data),
                      "rms_fitted": result.rms_error, "outcome": result.result})
     return rows
 
@@ -305,7 +315,7 @@ def predict_loops(spec, fitted, params, loops, conditions=None) -> list:
     from jaxhyst.identify.outputs import output_kind
     from jaxhyst.io import SIGNAL_OUTPUTS
 
-    records, _ = joint_view(fitted, params)
+    records = records_of(fitted)
     kind = output_kind(records.output if records.output != "mixed" else records.outputs[0])
     actuator = records.actuator
     out = []

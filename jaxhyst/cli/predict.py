@@ -43,7 +43,7 @@ def run(args) -> int:
     from jaxhyst.identify.conditions import ConditionWarning
     from jaxhyst.io import read_loops, write_columns_csv
 
-    from .identify import predict_loops
+    from .identify import error_summary, predict_loops, records_of
 
     check_outputs(args)
     _, spec, fitted, params = load_result(args.result)
@@ -70,12 +70,10 @@ def run(args) -> int:
     rows, columns = [], {"loop": [], "H_A_per_m": [], "predicted": [], "data": [],
                          "error": []}
     for lp, (pred, data) in zip(loops, predictions, strict=True):
-        H = np.asarray(loop_field(lp, fitted_actuator(fitted), source))
+        H = np.asarray(loop_field(lp, records_of(fitted).actuator, source))
         row = {"loop": lp.index, "samples": int(pred.shape[0])}
         if data is not None:
-            e = pred - data
-            row.update(rms=float(np.sqrt(np.mean(e**2))), max_abs=float(np.max(np.abs(e))),
-                       data_scale=float(np.max(np.abs(data))))
+            row.update(error_summary(pred, data))
         rows.append(row)
         columns["loop"].append(np.full(pred.shape, lp.index, dtype=float))
         columns["H_A_per_m"].append(H[-pred.shape[0]:])
@@ -97,9 +95,3 @@ def run(args) -> int:
     print_result(args, {"loops": rows, "out": args.out}, "\n".join(text))
     return 0
 
-
-def fitted_actuator(problem):
-    """The actuator of a fitted problem (of its records for a condition model)."""
-    import jaxhyst as jh
-
-    return (problem.records if isinstance(problem, jh.ConditionProblem) else problem).actuator

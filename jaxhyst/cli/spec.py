@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from jaxhyst._files import writes_in_place
-from jaxhyst.names import DEFAULT_SUBSTEPS, VARIANT_CLASSES
+from jaxhyst.names import CONDITION_FEATURES, DEFAULT_SUBSTEPS, VARIANT_CLASSES
 
 
 class CLIError(ValueError):
@@ -226,15 +226,10 @@ def loop_drive(spec, loop, out, actuator):
     return jh.drive_from_record(loop.t, H, run_in_periods=spec.get("run_in_periods", 1))
 
 
-#: The conditions a data file's columns give: feature → (column, unit).
-FEATURE_COLUMNS = {"log_f": ("frequency", "Hz"), "T": ("temperature", "°C")}
-
-
 def parse_vary(text) -> dict:
     """``--vary 'k:log_f+T,c:log_amplitude'`` → ``{"k": ("log_f", "T"), "c": (…)}``."""
     if not text:
         return {}
-    from jaxhyst.names import CONDITION_FEATURES
     from jaxhyst.params import NAMES
 
     out = {}
@@ -330,8 +325,8 @@ def build_problem(spec: dict, loops=None):
             conditions = loop_conditions(spec, loops, actuator)
             for name, feats in vary.items():
                 for f in feats:
-                    what, unit = FEATURE_COLUMNS.get(f, (None, None))
-                    if what and getattr(conditions, what) is None:
+                    what, unit = CONDITION_FEATURES[f]  # (amplitude: from the field)
+                    if what != "amplitude" and getattr(conditions, what) is None:
                         raise CLIError(f"--vary {name}:{f}: {spec['data']} has no {what} "
                                        f"column; add a '{what}' column ({unit}) or drop "
                                        f"{f} from --vary.")

@@ -49,9 +49,7 @@ from .problem import AbstractProblem, ResidualGroup
 from .space import ParameterSpace
 
 #: The features a condition provides: name → (what, unit of the raw condition).
-FEATURES = {"log_f": ("frequency", "Hz"), "T": ("temperature", "°C"),
-            "log_amplitude": ("amplitude", "A/m or T")}
-assert tuple(FEATURES) == CONDITION_FEATURES
+FEATURES = CONDITION_FEATURES
 
 #: Parameters that vary additively (the others multiplicatively: they are ≥ 0).
 ADDITIVE = ("alpha", "c")
