@@ -41,6 +41,12 @@ class Drive(eqx.Module):
       the mean step). ``None`` (default) detects it from a concrete ``t`` (also when the
       drive is built inside ``jit``/``grad`` from NumPy times); a traced ``t`` counts as
       non-uniform unless you say ``uniform=True``. The drive builders set it.
+    - ``periodic``: the observed samples are whole periods of a drive repeated forever
+      (their last sample closes the period: the same field as the first). The structural
+      response over them is then the exact periodic steady state (solved for, not reached
+      by waiting: `jaxhyst.model.structure.periodic_structural_response`); the
+      magnetization still starts demagnetized and needs its run-in (a ramp and one or two
+      periods settle it). Default False: everything starts at rest at the first sample.
 
     ``t`` and ``H`` are data: a new frequency, amplitude or jitter in ``t`` does not
     recompile a jitted simulation, and drives of equal length stack for ``vmap``. Only
@@ -53,8 +59,10 @@ class Drive(eqx.Module):
     H: Signal
     run_in: int = eqx.field(static=True, default=0)
     uniform: bool = eqx.field(static=True, default=False)
+    periodic: bool = eqx.field(static=True, default=False)
 
-    def __init__(self, t, H, run_in: int = 0, uniform: bool | None = None):
+    def __init__(self, t, H, run_in: int = 0, uniform: bool | None = None,
+                 periodic: bool = False):
         # inspect the values as given: inside a trace jnp.asarray turns even a NumPy
         # array into a tracer, and a drive built there from concrete times would lose
         # its uniform sampling (and its checks)
@@ -88,6 +96,12 @@ class Drive(eqx.Module):
                     "remove or interpolate those samples."
                 )
             _check_field_range(Hn, "Drive field H")
+            span = float(np.ptp(Hn[run_in:])) or 1.0
+            if periodic and abs(Hn[-1] - Hn[run_in]) > 1e-9 * span:
+                raise ValueError(
+                    f"Drive(periodic=True): the observed samples must close the period "
+                    f"(H[-1] = {Hn[-1]:g} A/m, the first observed H[{run_in}] = "
+                    f"{Hn[run_in]:g} A/m); end the record with its first sample repeated.")
         if is_concrete(t_given):
             tn = np.asarray(t_given, dtype=np.float64)
             if not np.all(np.isfinite(tn)):
@@ -114,6 +128,7 @@ class Drive(eqx.Module):
         self.H = H
         self.run_in = run_in
         self.uniform = bool(uniform)
+        self.periodic = bool(periodic)
 
     @property
     def n_samples(self) -> int:

@@ -30,6 +30,7 @@ from .solvers import (
     PaperLMA,
     PaperTRA,
     PaperTrustRegion,
+    TargetTermination,
     TwoDimensionalSubspaceDescent,
     make_solver,
 )
@@ -64,6 +65,7 @@ __all__ = [
     "ResidualProblem",
     "SOLVERS",
     "SamplingWarning",
+    "TargetTermination",
     "TwoDimensionalSubspaceDescent",
     "hybrid_method",
     "condition_space",

@@ -320,9 +320,48 @@ class BoxTermination(optx.AbstractLeastSquaresSolver):
         return self.inner.postprocess(fn, y, aux, args, options, state, tags, result)
 
 
+class TargetTermination(optx.AbstractLeastSquaresSolver):
+    """A Gauss–Newton-family solver that also stops once an accepted point's cost Σr²
+    is at most ``target``: a solve that only has to be as accurate as its model (a
+    compensating input refined to the model's own accuracy) need not run on to
+    round-off. Reads the Gauss–Newton state (module docstring). ``target = 0`` leaves
+    the inner solver's termination alone."""
+
+    inner: optx.AbstractLeastSquaresSolver
+    target: float
+
+    @property
+    def rtol(self):
+        return self.inner.rtol
+
+    @property
+    def atol(self):
+        return self.inner.atol
+
+    @property
+    def norm(self):
+        return self.inner.norm
+
+    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+        return self.inner.init(fn, y, args, options, f_struct, aux_struct, tags)
+
+    def step(self, fn, y, args, options, state, tags):
+        y_new, new_state, aux = self.inner.step(fn, y, args, options, state, tags)
+        accepted = (new_state.num_accepted_steps > state.num_accepted_steps) & ~state.first_step
+        reached = jnp.sum(new_state.f_info.residual ** 2) <= self.target
+        terminate = new_state.terminate | (accepted & reached)
+        return y_new, eqx.tree_at(lambda s: s.terminate, new_state, terminate), aux
+
+    def terminate(self, fn, y, args, options, state, tags):
+        return self.inner.terminate(fn, y, args, options, state, tags)
+
+    def postprocess(self, fn, y, aux, args, options, state, tags, result):
+        return self.inner.postprocess(fn, y, aux, args, options, state, tags, result)
+
+
 def _inner(solver):
     """The solver a `BoxTermination` wraps (its state is that solver's), else itself."""
-    return solver.inner if isinstance(solver, BoxTermination) else solver
+    return solver.inner if isinstance(solver, (BoxTermination, TargetTermination)) else solver
 
 
 def accepted_residuals(solver, state):

@@ -35,7 +35,11 @@ from .jiles_atherton import PAPER_VARIANT, AbstractJAVariant, anhysteretic
 from .losses import Losses
 from .magnetization import magnetization_path
 from .magnetostriction import magnetostriction
-from .structure import hermite_taylor_coefficients, structural_response
+from .structure import (
+    hermite_taylor_coefficients,
+    periodic_structural_response,
+    structural_response,
+)
 
 
 def _outside_jit(tree) -> bool:
@@ -112,11 +116,12 @@ def _simulate(params, actuator, drive, variant, substeps, losses=None) -> Simula
         M_sub, k_sub, H_hyst = dynamic_path(params, losses, drive.t, drive.H,
                                             variant=variant, substeps=S)
     args = (variant, params, actuator.Ar, drive.t, H_hyst, M_sub, k_sub)
+    periodic_from = drive.run_in if drive.periodic else None
     if under_vmap():  # its batch rule in blocks (`_batching.blocked_under_vmap`)
-        M, Man, Mirr, lam, y, v = blocked_under_vmap(_after_the_loop, uniform=drive.uniform,
-                                                      S=S)(*args)
+        M, Man, Mirr, lam, y, v = blocked_under_vmap(
+            _after_the_loop, uniform=drive.uniform, S=S, periodic_from=periodic_from)(*args)
     else:  # (the same without the wrappers: less to trace for grad)
-        M, Man, Mirr, lam, y, v = _after_the_loop(*args, drive.uniform, S)
+        M, Man, Mirr, lam, y, v = _after_the_loop(*args, drive.uniform, S, periodic_from)
     return Simulation(t=drive.t, H=drive.H, H_hyst=H_hyst, M=M, Man=Man, Mirr=Mirr, lam=lam,
                       y=y, velocity=v, strain=y / actuator.lr, run_in=drive.run_in)
 
@@ -124,11 +129,14 @@ def _simulate(params, actuator, drive, variant, substeps, losses=None) -> Simula
 _simulate_jit = eqx.filter_jit(_simulate)
 
 
-def _after_the_loop(variant, p, Ar, t, H, M_sub, k_sub, uniform: bool, S: int):
+def _after_the_loop(variant, p, Ar, t, H, M_sub, k_sub, uniform: bool, S: int,
+                    periodic_from: int | None = None):
     """Every signal but t and H from the magnetization path (`magnetization_path`'s
     M_sub (N, S) and k_sub (N, S + 1)): (M, Man, Mirr, λ, y, ẏ) at the samples, shape (T,)
     each. y and ẏ come from λ and dλ/dt at the substep points, their cubic Hermite
-    forcing and the structural recurrence (exact for that forcing)."""
+    forcing and the structural recurrence (exact for that forcing). ``periodic_from``:
+    the first observed sample of a periodic drive (`Drive.periodic`); from there on the
+    structure is in its periodic steady state (before it, it starts at rest)."""
     zero = jnp.zeros((1,), dtype=H.dtype)
     M = jnp.concatenate([zero, M_sub[:, -1]])
     M_points = jnp.concatenate([M[:-1, None], M_sub], axis=1)  # u_0 … u_S, (N, S + 1)
@@ -140,12 +148,20 @@ def _after_the_loop(variant, p, Ar, t, H, M_sub, k_sub, uniform: bool, S: int):
     force_gain = Ar * p.E / p.Mz  # u = Ar·E·λ/Mz, m/s² per unit λ
     w = force_gain * hermite_taylor_coefficients(lam[:, :-1], dlam[:, :-1], lam[:, 1:],
                                                  dlam[:, 1:], h[:, None])  # (N, S, 4)
-    x = structural_response(p, jnp.repeat(h, S), w.reshape(-1, 4), uniform)
-    x = x[S - 1 :: S]  # at the samples
+    steps, w = jnp.repeat(h, S), w.reshape(-1, 4)
+    if periodic_from is None:
+        x = structural_response(p, steps, w, uniform)[S - 1 :: S]  # at the samples
+        x = jnp.concatenate([jnp.zeros((1, 2), dtype=H.dtype), x])
+    else:  # at rest up to the observed periods, then their steady state
+        J = periodic_from * S
+        before = structural_response(p, steps[:J], w[:J], uniform)[S - 1 :: S]
+        start, during = periodic_structural_response(p, steps[J:], w[J:], uniform)
+        x = jnp.concatenate([jnp.zeros((1, 2), dtype=H.dtype), before[:-1], start[None],
+                             during[S - 1 :: S]]) if periodic_from else \
+            jnp.concatenate([start[None], during[S - 1 :: S]])
     Man, _ = anhysteretic(H, M, p)
     return (M, Man, variant.irreversible_magnetization(H, M, p),
-            magnetostriction(M, p.Ms, p.lambda_s),
-            jnp.concatenate([zero, x[:, 0]]), jnp.concatenate([zero, x[:, 1]]))
+            magnetostriction(M, p.Ms, p.lambda_s), x[:, 0], x[:, 1])
 
 
 def _static_substeps(substeps) -> int:

@@ -147,10 +147,11 @@ def hermite_taylor_coefficients(u0, du0, u1, du1, h):
     return jnp.stack([u0, du0, 2.0 * c2, 6.0 * c3], axis=-1)
 
 
-def structural_response(p: Parameters, h, forcing, uniform: bool):
+def structural_response(p: Parameters, h, forcing, uniform: bool, x0=None):
     """The state [y, ẏ] (m, m/s) after each step of x_{j+1} = Φ_j·x_j + G_j·w_j from
-    x_0 = 0, shape (J, 2), for steps ``h`` (s, shape (J,)) and forcing Taylor coefficients
-    ``forcing`` w (shape (J, 4), `hermite_taylor_coefficients` of u = Ar·E·λ/Mz).
+    x_0 (default 0: at rest), shape (J, 2), for steps ``h`` (s, shape (J,)) and forcing
+    Taylor coefficients ``forcing`` w (shape (J, 4), `hermite_taylor_coefficients` of
+    u = Ar·E·λ/Mz).
 
     ``uniform``: one exponential at the mean step h̄, each step's [Φ_j | G_j] corrected
     to second order in h_j − h̄ inside the loop (valid for |h_j − h̄| ≤ 1e-4·h̄);
@@ -181,8 +182,34 @@ def structural_response(p: Parameters, h, forcing, uniform: bool):
         x = m[:, 0] * x[0] + m[:, 1] * x[1] + sum(m[:, 2 + k] * w[k] for k in range(4))
         return x, x
 
-    _, xs = jax.lax.scan(body, jnp.zeros((2,), dtype=forcing.dtype), (per_step, forcing))
+    start = jnp.zeros((2,), dtype=forcing.dtype) if x0 is None else x0
+    _, xs = jax.lax.scan(body, start, (per_step, forcing))
     return xs
+
+
+def periodic_structural_response(p: Parameters, h, forcing, uniform: bool):
+    """The periodic steady state of the structure for a forcing that repeats with period
+    Σh: ``(x_start, xs)``, the state [y, ẏ] at the start of the period (shape (2,)) and
+    after each step (shape (J, 2), the last equal to ``x_start``). Arguments as in
+    `structural_response`.
+
+    The structure is linear, so its steady state is solved for instead of waiting for the
+    transient to decay: with x_J = F·x_0 + x_J(from rest) over one period (F the product
+    of the Φ_j), the periodic start is x* = (I − F)⁻¹·x_J(from rest), and each state is
+    the response from rest plus the free response from x*. The three recurrences (from
+    rest with the forcing, free from e₀ and from e₁) run as one batched scan. A structure
+    without damping driven at a harmonic of its resonance has no steady state (I − F is
+    singular); the result is then not finite."""
+    forcings = jnp.stack([forcing, jnp.zeros_like(forcing), jnp.zeros_like(forcing)])
+    starts = jnp.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], dtype=forcing.dtype)
+    xs = jax.vmap(lambda w, x0: structural_response(p, h, w, uniform, x0))(forcings, starts)
+    from_rest, free = xs[0], xs[1:]  # free[i, j]: state after step j from e_i
+    (f00, f10), (f01, f11) = free[0, -1], free[1, -1]  # F = [[f00, f01], [f10, f11]]
+    a, b, c, d = 1.0 - f00, -f01, -f10, 1.0 - f11  # I − F, inverted in closed form
+    det = a * d - b * c
+    r = from_rest[-1]
+    x_start = jnp.stack([d * r[0] - b * r[1], a * r[1] - c * r[0]]) / det
+    return x_start, from_rest + x_start[0] * free[0] + x_start[1] * free[1]
 
 
 def frequency_response(p: Parameters, actuator: Actuator,

@@ -1,0 +1,387 @@
+"""`compensate`: the input that makes the actuator model follow a desired displacement.
+
+1. **Reach** (`jaxhyst.control.reach`): what the actuator can do within the limits; the
+   samples of the reference it cannot follow are reported, with where and why.
+2. **Inverse model** (`jaxhyst.control.inverse`): each stage of the model run backwards
+   gives a first input.
+3. **Refinement**: Optimistix's Levenberg–Marquardt on the tracking error through the
+   forward model, over coordinates in which every input respects the current and
+   slew-rate limits (`jaxhyst.control.limits.InputMap`), with the Jacobian of the
+   displacement with respect to all N input samples by one forward-mode pass per step.
+
+The result says how well the best input that ignores hysteresis ("uncompensated": the
+reference scaled and shifted, u = a + b·(r − r̄), a and b fitted through the model), the
+inverse model alone and the refined input track the reference: rms error relative to the
+reference's peak-to-peak.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import warnings
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from ..drive import Drive
+from ..identify import TargetTermination, jacobian_linearized
+from ..progress import progress_meter
+from ..saved import Model
+from .inverse import inverse_input
+from .limits import InputLimits, InputMap
+from .reach import Reach, Unreachable, reach, unreachable
+from .reference import Reference
+from .tracking import Tracking, evaluate, input_gain, settling_periods
+
+#: Largest estimated model error at the reference's sampling, relative to its stroke.
+COARSE = 1e-3
+#: Most input samples refined at once (the Jacobian is N × N, dense).
+MAX_REFINED = 4096
+#: The refinement's residuals are (y − r) in this fraction of the reference's stroke, so
+#: that Levenberg–Marquardt's first damping (1) is small against JᵀJ: its first steps are
+#: Gauss–Newton steps, which reach a reachable reference in a few.
+RESIDUAL_UNIT = 1e-4
+#: Levenberg–Marquardt's Cauchy tolerances (on z and on Σr²) when the target is not met.
+_RTOL, _ATOL = 1e-8, 1e-12
+
+
+class UnreachableWarning(UserWarning):
+    """Part of a reference lies beyond what the actuator can do (`Compensation.unreachable`
+    says where and why)."""
+
+
+class SettlingWarning(UserWarning):
+    """The model's magnetization had not settled onto its periodic loop within the
+    run-in periods (a small loop with large pinning settles slowly)."""
+
+
+def rms_error(y, r, scale: float) -> float:
+    """rms(y − r)/scale."""
+    return float(np.sqrt(np.mean((np.asarray(y) - np.asarray(r)) ** 2)) / scale)
+
+
+@dataclasses.dataclass(frozen=True)
+class Compensation:
+    """The result of `compensate` (host arrays of shape (N,), the reference's samples).
+
+    - ``input``: the compensating input u (``unit``: A of coil current, or A/m of AC
+      field for an actuator driven by a field); periodic for a periodic reference;
+      ``displacement``: what the model predicts for it, m.
+    - ``inverse_input``/``inverse_displacement``: the inverse model alone;
+      ``uncompensated_input``/``uncompensated_displacement``: the best input that
+      ignores hysteresis (the reference scaled and shifted).
+    - ``limits`` (`InputLimits`), ``reach`` (`jaxhyst.control.reach.Reach`),
+      ``unreachable``: the stretches of the reference beyond the actuator
+      (`jaxhyst.control.reach.Unreachable`, empty if it is all reachable).
+    - ``steps`` of the refinement, its ``outcome`` (``successful``, ``max_steps_reached``
+      or ``not refined``), ``seconds`` the whole call took after compilation of what it
+      runs, ``run_in_periods`` of a periodic reference.
+    """
+
+    reference: Reference
+    input: np.ndarray
+    displacement: np.ndarray
+    unit: str
+    limits: InputLimits
+    inverse_input: np.ndarray
+    inverse_displacement: np.ndarray
+    uncompensated_input: np.ndarray
+    uncompensated_displacement: np.ndarray
+    reach: Reach
+    unreachable: tuple[Unreachable, ...]
+    steps: int
+    outcome: str
+    seconds: float
+    run_in_periods: int
+    settled: float
+    gain: float
+    bias: float
+
+    @property
+    def t(self) -> np.ndarray:
+        return np.asarray(self.reference.t)
+
+    def _error(self, y) -> float:
+        return rms_error(y, self.reference.displacement, self.reference.scale)
+
+    @property
+    def error(self) -> float:
+        """rms tracking error of the compensated input, relative to the reference's
+        peak-to-peak."""
+        return self._error(self.displacement)
+
+    @property
+    def inverse_error(self) -> float:
+        return self._error(self.inverse_displacement)
+
+    @property
+    def uncompensated_error(self) -> float:
+        return self._error(self.uncompensated_displacement)
+
+    @property
+    def max_error(self) -> float:
+        """Largest |y − r| relative to the reference's peak-to-peak."""
+        r = np.asarray(self.reference.displacement)
+        return float(np.max(np.abs(self.displacement - r)) / self.reference.scale)
+
+    @property
+    def reachable(self) -> bool:
+        return not self.unreachable
+
+    def drive(self, periods: int = 1) -> Drive:
+        """A `Drive` (H = gain·u + Hb, A/m) that applies the input: ``periods``
+        repetitions of a periodic input, closed by its first sample, or the record. It
+        has no run-in: simulate it after your own, or take `Compensation.displacement`
+        as the model's steady state."""
+        u = self.input
+        if self.reference.periodic:
+            u = np.append(np.tile(u, int(periods)), u[0])
+            t = self.t[0] + self.reference.dt * np.arange(u.shape[0])
+        else:
+            t = self.t
+        return Drive(t, self.gain * u + self.bias)
+
+    def summary(self) -> str:
+        r = self.reference
+        kind = (f"one period of {r.n_samples} samples, {1.0 / r.period:g} Hz" if r.periodic
+                else f"a record of {r.n_samples} samples")
+        lines = [f"compensation of {kind}; input limits {self.limits.describe(self.unit)}",
+                 f"  rms tracking error / peak-to-peak: uncompensated "
+                 f"{self.uncompensated_error:.3e}, inverse model {self.inverse_error:.3e}, "
+                 f"refined {self.error:.3e} ({self.uncompensated_error / self.error:.3g}x "
+                 f"better than uncompensated)",
+                 f"  refinement: {self.steps} steps, {self.outcome}; {self.seconds:.3g} s"]
+        if self.unreachable:
+            lines.append(f"  unreachable ({len(self.unreachable)} stretches): "
+                         + "; ".join(str(u) for u in self.unreachable[:3])
+                         + ("; …" if len(self.unreachable) > 3 else ""))
+        if self.settled > 1e-6:
+            lines.append(f"  the magnetization had not settled: it still moved by "
+                         f"{self.settled:.2g}·Ms per period after {self.run_in_periods} "
+                         "periods")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """JSON-able summary (numbers and the unreachable stretches, no arrays)."""
+        lim = self.limits
+        return {"periodic": self.reference.periodic, "samples": self.reference.n_samples,
+                "unit": self.unit, "limits": {"lower": lim.lower, "upper": lim.upper,
+                                              "slew": lim.slew, "given": lim.given},
+                "error": self.error, "max_error": self.max_error,
+                "inverse_error": self.inverse_error,
+                "uncompensated_error": self.uncompensated_error, "steps": self.steps,
+                "outcome": self.outcome, "seconds": self.seconds,
+                "run_in_periods": self.run_in_periods,
+                "stroke_m": list(self.reach.y),
+                "unreachable": [{"reason": u.reason, "start": u.start, "stop": u.stop,
+                                 "t_start_s": u.t_start, "t_stop_s": u.t_stop,
+                                 "excess": u.excess, "unit": u.unit}
+                                for u in self.unreachable]}
+
+
+class _TrackingResiduals(eqx.Module):
+    """The refinement's residuals: (y(u(z)) − r)/(scale·`RESIDUAL_UNIT`), then the
+    map's own."""
+
+    tracking: Tracking
+    imap: InputMap
+    r: jax.Array
+    scale: jax.Array
+
+    def __call__(self, z, args=None):
+        y = self.tracking.displacement(self.imap.input(z))
+        e = (y - self.r) / (self.scale * RESIDUAL_UNIT)
+        return jnp.concatenate([e, self.imap.extra_residuals(z)])
+
+
+@eqx.filter_jit
+def _least_squares(residuals, z0, max_steps, rtol, atol, target):
+    """Levenberg–Marquardt from z0, stopped also once Σr² ≤ ``target``: (z, whether it
+    converged, steps)."""
+    fn = jacobian_linearized(residuals)
+    solver = TargetTermination(optx.LevenbergMarquardt(rtol=rtol, atol=atol), target)
+    sol = optx.least_squares(fn, solver, z0, max_steps=max_steps, throw=False,
+                             options={"jac": "fwd"})
+    return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
+
+
+class _Affine(eqx.Module):
+    """u = mid + half·(a + b·shape): the uncompensated input's two coordinates."""
+
+    tracking: Tracking
+    shape: jax.Array
+    mid: float = eqx.field(static=True)
+    half: float = eqx.field(static=True)
+    r: jax.Array
+    scale: jax.Array
+
+    def input(self, z):
+        return self.mid + self.half * (z[0] + z[1] * self.shape)
+
+    def __call__(self, z, args=None):
+        y = self.tracking.displacement(self.input(z))
+        return (y - self.r) / (self.scale * RESIDUAL_UNIT)
+
+
+def _uncompensated(tracking: Tracking, reference: Reference, limits: InputLimits,
+                   u_start: np.ndarray) -> np.ndarray:
+    """The best input that ignores hysteresis: u = a + b·(r − r̄)/(ptp(r)/2), a and b
+    fitted through the model (from the mean and swing of ``u_start``), then clipped into
+    the limits."""
+    r = np.asarray(reference.displacement)
+    span = float(np.ptp(r)) or 1.0
+    shape = (r - r.mean()) / (0.5 * span)
+    affine = _Affine(tracking, jnp.asarray(shape), limits.mid, limits.half, jnp.asarray(r),
+                     jnp.asarray(reference.scale))
+    z0 = np.array([(u_start.mean() - limits.mid) / limits.half,
+                   0.5 * np.ptp(u_start) / limits.half])
+    z, _, _ = _least_squares(affine, jnp.asarray(z0), 40, 1e-6, 1e-9, 0.0)
+    return np.clip(np.asarray(affine.input(np.asarray(z))), limits.lower, limits.upper)
+
+
+def _check_accuracy(tracking: Tracking, u: np.ndarray, scale: float) -> None:
+    """A one-line error if the model's discretization error at the reference's sampling
+    (estimated from the same drive at twice the substeps: RK4's error falls 16×) is
+    above `COARSE` of the reference's stroke."""
+    model = tracking.model
+    finer = eqx.tree_at(lambda t: t.model, tracking,
+                        Model(model.params, model.actuator, model.variant,
+                              2 * model.substeps, model.losses))
+    y, y2 = evaluate(tracking, u), evaluate(finer, u)
+    error = float(np.max(np.abs(y - y2))) * 16.0 / 15.0 / scale
+    if not np.isfinite(error) or error <= COARSE:
+        return
+    N = tracking.n
+    factor = 2 ** math.ceil(math.log2((error / COARSE) ** 0.25 * 1.05))
+    what = "per period" if tracking.periodic else "in the record"
+    raise ValueError(
+        f"the reference is sampled too coarsely for the model's accuracy: at {N} samples "
+        f"{what} its displacement error is estimated at {error:.2g} of the reference's "
+        f"stroke (above {COARSE:g}); give at least {N * factor} samples {what} (or more "
+        f"substeps than {model.substeps}).")
+
+
+def _model_of(model) -> Model:
+    if isinstance(model, Model):
+        if jnp.ndim(model.params.Ms) != 0:
+            raise ValueError("compensate needs one parameter set; this model holds one per "
+                             "loop (a joint fit): pick one, e.g. with jaxhyst.Model(params="
+                             "jax.tree.map(lambda x: x[0], model.params), …).")
+        return model
+    raise TypeError(f"model must be a jaxhyst.Model (parameters, actuator, form); got "
+                    f"{type(model).__name__}. Build one: jaxhyst.Model(params, actuator).")
+
+
+def compensate(model: Model, reference: Reference, *, current_limit=None,
+               slew_limit=None, refine: bool = True, tolerance: float = 1e-6,
+               max_steps: int = 100, progress=False) -> Compensation:
+    """The input that makes ``model`` follow ``reference``.
+
+    **Arguments:**
+    - ``model``: a `jaxhyst.Model` (identified parameters, actuator, Jiles–Atherton form,
+      substeps, losses) — e.g. ``jaxhyst.Model(jh.TABLE3[800], jh.ACTUATOR2)``.
+    - ``reference``: a `jaxhyst.control.Reference` (`sinusoidal_reference`,
+      `multitone_reference`, `reference_from_record`).
+    - ``current_limit``: a positive number L (|u| ≤ L) or a pair (lower, upper), in A of
+      coil current — or A/m of AC field for an actuator without turns per metre
+      (Actuator2). None: no limit (the range the refinement may use is derived from the
+      inverse model and said so).
+    - ``slew_limit``: the largest |du/dt| (A/s, or A/m per s), or None.
+    - ``refine``: refine the inverse model's input through the forward model (default).
+    - ``tolerance``: the refinement stops once the rms tracking error is at most this
+      fraction of the reference's peak-to-peak (default 1e-6, below the model's own
+      accuracy; 0: until Levenberg–Marquardt converges), or after ``max_steps``.
+    - ``progress``: True or a `jaxhyst.progress` meter: a line per stage.
+
+    **Returns:** a `Compensation`. Every input sample lies inside the limits. Warns
+    (`UnreachableWarning`) where the reference asks for more than the actuator can do:
+    ``result.unreachable`` says where and why; the input there is the best the limits
+    allow. Raises ``ValueError`` (one line) for a reference sampled too coarsely for the
+    model's accuracy or bad limits.
+    """
+    started = time.perf_counter()
+    model = _model_of(model)
+    if not (isinstance(tolerance, (int, float)) and np.isfinite(tolerance)
+            and tolerance >= 0):
+        raise ValueError(f"tolerance must be a number >= 0 (an rms error relative to the "
+                         f"reference's peak-to-peak); got {tolerance!r}.")
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) \
+            or max_steps < 1:
+        raise ValueError(f"max_steps must be an integer >= 1; got {max_steps!r}.")
+    if not isinstance(reference, Reference):
+        raise TypeError(f"reference must be a jaxhyst.control.Reference (from "
+                        f"sinusoidal_reference, multitone_reference or reference_from_record); "
+                        f"got {type(reference).__name__}.")
+    gain, unit = input_gain(model)
+    limits = None if current_limit is None else InputLimits.of(current_limit, slew_limit,
+                                                                unit=unit)
+    if current_limit is None and slew_limit is not None:
+        InputLimits.of(1.0, slew_limit, unit=unit)  # (checks the slew limit alone)
+    if refine and reference.n_samples > MAX_REFINED:
+        raise ValueError(f"the reference has {reference.n_samples} samples; the refinement "
+                         f"takes at most {MAX_REFINED} at once (split the record, or pass "
+                         "refine=False for the inverse model alone).")
+    meter = progress_meter(progress)
+    state = meter.init("compensate", None)
+    tracking = Tracking.of(model, reference)
+    reach_ = reach(model, limits, gain)
+    inverse = inverse_input(tracking, reference, reach_)
+    if limits is None:  # the range the optimiser may use: the inverse's, widened
+        lo, hi = float(inverse.u.min()), float(inverse.u.max())
+        pad = 0.5 * max(hi - lo, abs(hi), abs(lo), 1e-12)
+        limits = InputLimits(lo - pad, hi + pad, None if slew_limit is None else
+                             float(slew_limit), given=False)
+    imap = InputMap(limits, reference.n_samples, reference.dt, reference.periodic)
+    u_inverse = imap.input(jnp.asarray(imap.coordinates(inverse.u)))
+    u_inverse = np.asarray(u_inverse)
+    settled = 0.0
+    if reference.periodic:
+        periods, settled = settling_periods(tracking, u_inverse)
+        tracking = tracking.with_run_in(periods)
+    _check_accuracy(tracking, u_inverse, reference.scale)
+    p = model.params
+    found = unreachable(reach_, reference.t, reference.displacement, inverse.lam,
+                        inverse.u, limits, reference.dt, unit, reference.periodic,
+                        2.0 * float(p.Mz) / max(float(p.Cz), 1e-300))
+    if found:
+        warnings.warn(f"part of the reference is beyond the actuator: {found[0]}"
+                      + (f" (and {len(found) - 1} more)" if len(found) > 1 else ""),
+                      UnreachableWarning, stacklevel=2)
+    state = meter.step(state, 1, f"inverse model done ({len(found)} unreachable "
+                                 f"stretches); run-in {tracking.run_in_periods} periods")
+    r = np.asarray(reference.displacement)
+    u_plain = _uncompensated(tracking, reference, limits, u_inverse)
+    y_inverse = evaluate(tracking, u_inverse)
+    steps, outcome, u = 0, "not refined", u_inverse
+    if refine and rms_error(y_inverse, r, reference.scale) <= tolerance:
+        outcome = "successful"  # (the inverse model alone is within the tolerance)
+    elif refine:
+        residuals = _TrackingResiduals(tracking, imap, jnp.asarray(r),
+                                       jnp.asarray(reference.scale))
+        state = meter.step(state, 2, f"refining {reference.n_samples} input samples")
+        target = r.shape[0] * (tolerance / RESIDUAL_UNIT) ** 2
+        z, ok, n = _least_squares(residuals, jnp.asarray(imap.coordinates(u_inverse)),
+                                  int(max_steps), _RTOL, _ATOL, float(target))
+        u = np.asarray(imap.input(z))
+        steps, outcome = int(n), "successful" if bool(ok) else "max_steps_reached"
+    y, y_plain = evaluate(tracking, u), evaluate(tracking, u_plain)
+    if settled > 1e-6:
+        warnings.warn(f"the model's magnetization still moves by {settled:.2g}·Ms per "
+                      f"period after {tracking.run_in_periods} run-in periods; the "
+                      "predicted steady state is that far from settled.", SettlingWarning,
+                      stacklevel=2)
+    result = Compensation(
+        reference=reference, input=u, displacement=y, unit=unit, limits=limits,
+        inverse_input=u_inverse, inverse_displacement=y_inverse,
+        uncompensated_input=u_plain, uncompensated_displacement=y_plain, reach=reach_,
+        unreachable=tuple(found), steps=steps, outcome=outcome,
+        seconds=time.perf_counter() - started, run_in_periods=tracking.run_in_periods,
+        settled=settled, gain=gain, bias=float(model.actuator.Hb))
+    meter.close(state, f"rms error {result.error:.3e} of the peak-to-peak "
+                       f"(uncompensated {result.uncompensated_error:.3e})")
+    return result
