@@ -148,7 +148,8 @@ def _is_number(s: str) -> bool:
     return True
 
 
-def read_loops(path, columns: list[str] | str | None = None) -> list[Loop]:
+def read_loops(path, columns: list[str] | str | None = None, *,
+               drive: bool = True) -> list[Loop]:
     """Read measured loops from a delimited text file (see the module docstring).
 
     **Arguments:**
@@ -156,11 +157,13 @@ def read_loops(path, columns: list[str] | str | None = None) -> list[Loop]:
       with ``#`` are comments.
     - ``columns``: column names for a file without a header (``["t", "H", "y [um]"]`` or
       ``"t,H,y [um]"``), or to override the file's header.
+    - ``drive``: whether the file must give the drive (H or I); False for a file of a
+      signal alone (a reference displacement to follow).
 
     **Returns:** one `Loop` per value of the ``loop`` column (or one loop). Raises
     `DataError` for: a missing or empty file, unknown columns, unit mismatches, NaN or
     non-numeric values, non-increasing time within a loop, fewer than 8 samples in a
-    loop, a file with neither H nor I.
+    loop, a file with neither H nor I (where ``drive``).
     """
     path = Path(path)
     if path.is_dir():
@@ -195,7 +198,7 @@ def read_loops(path, columns: list[str] | str | None = None) -> list[Loop]:
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise DataError(f"{path.name}: quantity {dup} appears in more than one column.")
-    if "H" not in names and "I" not in names:
+    if drive and "H" not in names and "I" not in names:
         raise DataError(f"{path.name} has neither a field column H [A/m] nor a current column "
                         "I [A]; the drive must be given.")
     if len(body) == 0:

@@ -209,3 +209,36 @@ def plot_identifiability(report, path, title: str = "") -> None:
     if title:
         fig.suptitle(title)
     _save(fig, path)
+
+
+def plot_compensation(result, path, title: str = "") -> None:
+    """A compensation (`jaxhyst.control.Compensation`): the displacement against time —
+    reference, uncompensated and compensated (μm) — the tracking errors (% of the
+    reference's peak-to-peak), and the inputs with their limits."""
+    plt = _pyplot()
+    t = np.asarray(result.t) * 1e3
+    r = np.asarray(result.reference.displacement)
+    scale = result.reference.scale
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4), constrained_layout=True)
+    axes[0].plot(t, r * 1e6, "k", lw=2.5, alpha=0.35, label="reference")
+    axes[0].plot(t, result.uncompensated_displacement * 1e6, label="uncompensated")
+    axes[0].plot(t, result.displacement * 1e6, "--", label="compensated")
+    axes[0].set(xlabel="t (ms)", ylabel="y (μm)", title="displacement")
+    axes[1].plot(t, 100 * (result.uncompensated_displacement - r) / scale,
+                 label=f"uncompensated, rms {100 * result.uncompensated_error:.2g} %")
+    axes[1].plot(t, 100 * (result.displacement - r) / scale,
+                 label=f"compensated, rms {100 * result.error:.2g} %")
+    axes[1].set(xlabel="t (ms)", ylabel="y − reference (% of peak-to-peak)",
+                title="tracking error")
+    axes[2].plot(t, result.uncompensated_input, label="uncompensated")
+    axes[2].plot(t, result.input, label="compensated")
+    for bound in (result.limits.lower, result.limits.upper):
+        axes[2].axhline(bound, color="0.5", ls=":", lw=1)
+    what = "current" if result.unit == "A" else "AC field"
+    axes[2].set(xlabel="t (ms)", ylabel=f"{what} ({result.unit})", title=f"input ({what})")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    _save(fig, path)

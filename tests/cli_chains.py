@@ -3,7 +3,7 @@ background when the test session begins (conftest.py) so that their start-up and
 compilation overlap the in-process tests; tests/test_cli_subprocess.py checks what they
 left in their directory.
 
-    python tests/cli_chains.py e2e|resume|reproduce|experiments|sharding|measured DIR
+    python tests/cli_chains.py e2e|resume|reproduce|experiments|sharding|measured|compensate DIR
 """
 
 from __future__ import annotations
@@ -170,6 +170,44 @@ def measured(d):
                      os.path.join(d, "start.log")),
         "report": run(["report", r2], os.path.join(d, "report.log"), cwd="/"),
     }
+
+
+def compensate(d):
+    """jaxhyst compensate: a sine on Actuator1 (CSV, PNG, JSON); one learning step from
+    a run of a plant whose λs and k differ from the model's (its displacement for the
+    compensating current, simulated here, is the "measurement"), and the plant driven
+    by the next current; a reference beyond the stroke (exit 3)."""
+    import numpy as np
+
+    import jaxhyst as jh
+    from jaxhyst.control import sinusoidal_reference
+    from jaxhyst.control.compensate import rms_error
+    from jaxhyst.control.tracking import Tracking, evaluate
+
+    base = ["compensate", "--current-limit", "2.5", "--amplitude", "20e-6", "--mean", "45e-6"]
+    first, nxt = os.path.join(d, "first.csv"), os.path.join(d, "next.csv")
+    out = {"first": run([*base, "--csv", first, "--png", os.path.join(d, "first.png"),
+                         "--out", os.path.join(d, "first.json")], os.path.join(d, "first.log"))}
+    plant = jh.Model(jh.TABLE1_TRUE.replace(lambda_s=1.1e-3, k=3500.0), jh.ACTUATOR1)
+    reference = sinusoidal_reference(100.0, 20e-6, 45e-6)
+    measure = Tracking.of(plant, reference, 16)
+    errors = []
+    for path, measured in ((first, os.path.join(d, "measured.csv")), (nxt, None)):
+        if out["first"] != 0:
+            break
+        table = np.loadtxt(path, delimiter=",", skiprows=1)
+        y = evaluate(measure, table[:, 1])
+        errors.append(rms_error(y, reference.displacement, reference.scale))
+        if measured:
+            np.savetxt(measured, np.c_[table[:, 0], table[:, 1], y], delimiter=",",
+                       header="t [s],I [A],y [m]", comments="")
+            out["learn"] = run([*base, "--measured", measured, "--csv", nxt, "--out",
+                                os.path.join(d, "learn.json")], os.path.join(d, "learn.log"))
+    out["plant_errors"] = errors
+    out["beyond"] = run(["compensate", "--current-limit", "1", "--amplitude", "60e-6",
+                         "--mean", "50e-6", "--out", os.path.join(d, "beyond.json")],
+                        os.path.join(d, "beyond.log"))
+    return out
 
 
 def experiments(d):

@@ -33,7 +33,8 @@ def pytest_collection_finish(session):
     root = tempfile.mkdtemp(prefix="jaxhyst-cli-")
     script = os.path.join(os.path.dirname(__file__), "cli_chains.py")
     nice = ["nice", "-n", "10"] if shutil.which("nice") else []
-    for chain in ("reproduce", "experiments", "sharding", "e2e", "resume", "measured"):
+    for chain in ("reproduce", "experiments", "sharding", "e2e", "resume", "measured",
+                  "compensate"):
         d = os.path.join(root, chain)
         os.makedirs(d)
         # niced (the `nice` command: a preexec_fn would fork the multithreaded JAX

@@ -178,3 +178,25 @@ def test_measured_loop_default_command_bounds_stops_and_start():
     assert again["problem"]["data"] == os.path.join("..", "loop.csv")
     assert abs(again["cost"] / first["cost"] - 1) < 1e-6
     assert status["report"] == 0, _log(d, "report.log")
+
+
+def test_compensate_writes_its_files_learns_from_a_plant_and_reports_the_unreachable():
+    d, status = _finished("compensate")
+    assert status["first"] == 0, _log(d, "first.log")
+    with open(os.path.join(d, "first.json")) as fh:
+        first = json.load(fh)
+    assert first["error"] < 1e-6 < 0.05 < first["uncompensated_error"]
+    assert first["unreachable"] == [] and first["limits"]["lower"] == -2.5
+    table = np.loadtxt(os.path.join(d, "first.csv"), delimiter=",", skiprows=1)
+    with open(os.path.join(d, "first.csv")) as fh:
+        assert fh.readline().strip() == "t [s],I [A],H [A/m],y [m]"
+    assert table.shape == (200, 4) and np.all(np.abs(table[:, 1]) <= 2.5)
+    assert os.path.getsize(os.path.join(d, "first.png")) > 10_000
+    assert status["learn"] == 0, _log(d, "learn.log")
+    before, after = status["plant_errors"]
+    assert before > 0.02 and after < before / 4, status["plant_errors"]
+    assert status["beyond"] == 3, _log(d, "beyond.log")
+    with open(os.path.join(d, "beyond.json")) as fh:
+        beyond = json.load(fh)
+    assert any(u["reason"] == "beyond the stroke" for u in beyond["unreachable"])
+    assert "beyond the stroke at t =" in _log(d, "beyond.log")

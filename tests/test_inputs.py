@@ -45,6 +45,10 @@ def _files(d):
         "bounds_unknown": json.dumps({"kk": [1, 2]}).encode(),
         "bounds_short": json.dumps({"k": [1]}).encode(),
         "checkpoint_text": b"not a checkpoint",
+        "ref_short": b"t [s],y [m]\n" + b"".join(f"{1e-4 * i},{1e-6 * (2 + np.sin(i))}\n"
+                                                  .encode() for i in range(50)),
+        "ref_nan": b"t [s],y [um]\n" + b"".join(f"{1e-4 * i},{10 + i % 3}\n".encode()
+                                                 for i in range(20)) + b"2e-3,nan\n",
     }.items():
         f = d / name
         f.write_bytes(content)
@@ -91,6 +95,22 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     (["report", "{ok}"], 2, "not valid JSON"),
     (["report", "{params_list}"], 2, "expected a JSON object"),
     (["reproduce", "table4"], 2, "invalid choice"),
+    (["compensate", "--current-limit", "0"], 2, "current limit must be a positive number"),
+    (["compensate", "--current-limit", "-3"], 2, "current limit must be a positive number"),
+    (["compensate", "--current-limit", "3,1"], 2, "lower < upper"),
+    (["compensate", "--current-limit", "1", "--slew-limit", "0"], 2, "--slew-limit"),
+    (["compensate"], 2, "give the reference (--amplitude and --mean"),
+    (["compensate", "--reference", "{ref_nan}"], 2, "is not a finite number"),
+    (["compensate", "--reference", "{ref_short}", "--frequency", "100"], 2,
+     "shorter than one period"),
+    (["compensate", "--reference", "{ref_short}", "--frequency", "100", "--periodic"], 2,
+     "exclude each other"),
+    (["compensate", "--reference", "{ref_short}", "--amplitude", "1e-6"], 2, "is a file"),
+    (["compensate", "--tones", "1e-6", "--amplitude", "1e-6"], 2, "--tones and --phases"),
+    (["compensate", "--amplitude", "1e-5", "--mean", "4e-5", "--samples-per-period", "8",
+      "--current-limit", "2.5"], 2, "sampled too coarsely"),
+    (["compensate", "--amplitude", "1e-5", "--mean", "4e-5", "--measured", "{ok}"], 2,
+     "no displacement column y"),
 ]
 
 

@@ -157,9 +157,11 @@ class Compensation:
                  f"better than uncompensated)",
                  f"  refinement: {self.steps} steps, {self.outcome}; {self.seconds:.3g} s"]
         if self.unreachable:
-            lines.append(f"  unreachable ({len(self.unreachable)} stretches): "
-                         + "; ".join(str(u) for u in self.unreachable[:3])
-                         + ("; …" if len(self.unreachable) > 3 else ""))
+            shown = self.unreachable[:5]
+            lines.append(f"  unreachable ({len(self.unreachable)} stretches"
+                         + (f", the first {len(shown)}" if len(shown) < len(self.unreachable)
+                            else "") + "):")
+            lines += [f"    {u}" for u in shown]
         if self.settled > 1e-6:
             lines.append(f"  the magnetization had not settled: it still moved by "
                          f"{self.settled:.2g}·Ms per period after {self.run_in_periods} "
@@ -326,8 +328,6 @@ def compensate(model: Model, reference: Reference, *, current_limit=None,
         raise ValueError(f"the reference has {reference.n_samples} samples; the refinement "
                          f"takes at most {MAX_REFINED} at once (split the record, or pass "
                          "refine=False for the inverse model alone).")
-    meter = progress_meter(progress)
-    state = meter.init("compensate", None)
     tracking = Tracking.of(model, reference)
     reach_ = reach(model, limits, gain)
     inverse = inverse_input(tracking, reference, reach_)
@@ -344,6 +344,8 @@ def compensate(model: Model, reference: Reference, *, current_limit=None,
         periods, settled = settling_periods(tracking, u_inverse)
         tracking = tracking.with_run_in(periods)
     _check_accuracy(tracking, u_inverse, reference.scale)
+    meter = progress_meter(progress)  # (after the checks: a bad input gets one line)
+    state = meter.init("compensate", None)
     p = model.params
     found = unreachable(reach_, reference.t, reference.displacement, inverse.lam,
                         inverse.u, limits, reference.dt, unit, reference.periodic,

@@ -101,6 +101,19 @@ class IterativeLearning(eqx.Module):
         return LearningState(z=z, input=np.asarray(imap.input(jnp.asarray(z))),
                              iteration=0, errors=())
 
+    def state_for(self, applied) -> LearningState:
+        """The state of an input already applied (A or A/m, shape (N,): a run that was
+        measured), e.g. one written by an earlier session; it is taken into the limits."""
+        u = np.asarray(applied, dtype=np.float64)
+        N = self.reference.n_samples
+        if u.shape != (N,) or not np.all(np.isfinite(u)):
+            raise ValueError(f"the applied input must be {N} finite values (one per reference "
+                             f"sample); got shape {u.shape}.")
+        imap = self.residuals.imap
+        z = imap.coordinates(u)
+        return LearningState(z=z, input=np.asarray(imap.input(jnp.asarray(z))), iteration=0,
+                             errors=())
+
     def step(self, state: LearningState, measured) -> LearningState:
         """The next state, from the displacement ``measured`` (m, shape (N,): at the
         reference's samples, with ``state.input`` applied)."""

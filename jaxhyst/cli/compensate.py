@@ -1,0 +1,319 @@
+"""``jaxhyst compensate``: the drive input that makes the actuator follow a displacement
+(`jaxhyst.control.compensate`), and with ``--measured`` the next input of iterative
+learning on the real actuator (`jaxhyst.control.IterativeLearning`)."""
+
+from __future__ import annotations
+
+from jaxhyst.names import DEFAULT_SUBSTEPS
+
+from .options import COUNT, FINITE, POSITIVE, POSITIVE_INT, UNITS_HELP, VARIANTS
+from .spec import (
+    CLIError,
+    actuator_arg,
+    check_outputs,
+    note,
+    parameters_arg,
+    print_result,
+    variant_from_name,
+    warn,
+)
+
+#: The fraction of the stroke a reference derived from the limits swings over.
+DEFAULT_SWING = 0.3
+
+
+def add_parser(sub) -> None:
+    """Register the command and its options on the subparsers ``sub``."""
+    parser = sub.add_parser(
+        "compensate", help="the drive current that makes the actuator follow a displacement",
+        description="Compensate hysteresis: the coil current (or, for an actuator driven by "
+        "a field, the AC field) that makes the model follow a reference displacement — the "
+        "inverse model, refined through the forward model within --current-limit and "
+        "--slew-limit. The reference is a sinusoid, tones at harmonics of --frequency, or a "
+        "CSV file (t, y or strain). With --measured (a run of the real actuator: t, I or H, "
+        "y) it writes the next input of iterative learning instead. Writes t, input and the "
+        "predicted displacement (--csv), a figure (--png) and a JSON summary (--out). "
+        "Exit 3: part of the reference is beyond the actuator, or the refinement stopped "
+        "short (the result is written and says where). " + UNITS_HELP)
+    parser.add_argument("--params", default="table1",
+                        help="table1, table3:<Hz> or a JSON file (a result JSON also works)")
+    parser.add_argument("--model", help="a saved model (jaxhyst identify --save-model) "
+                        "instead of --params/--actuator/--variant/--substeps")
+    parser.add_argument("--actuator", default="actuator1",
+                        help="actuator1, actuator2 or a JSON file {Ar, lr, n, Hb}")
+    parser.add_argument("--variant", choices=VARIANTS, default="energy",
+                        help="Jiles–Atherton form (energy: the paper's)")
+    parser.add_argument("--substeps", type=POSITIVE_INT, default=DEFAULT_SUBSTEPS,
+                        help="RK4 substeps per sample")
+    parser.add_argument("--reference", default="sine",
+                        help="sine, tones, or a CSV file with t and y (or strain) columns")
+    parser.add_argument("--frequency", type=POSITIVE,
+                        help="Hz: of the sine, the tones' fundamental, or the period of a "
+                        "reference file (default 100 for sine and tones; a file without it "
+                        "is a record, unless --periodic)")
+    parser.add_argument("--amplitude", type=POSITIVE, help="of the sine, m (or strain)")
+    parser.add_argument("--tones", help="amplitudes of the tones at harmonics 1, 2, 3 … of "
+                        "--frequency, comma-separated, m (or strain)")
+    parser.add_argument("--phases", help="phases of the tones, comma-separated, rad")
+    parser.add_argument("--mean", type=FINITE, help="mean displacement, m (or strain)")
+    parser.add_argument("--samples-per-period", type=POSITIVE_INT, default=200,
+                        help="samples per period of the sine and the tones")
+    parser.add_argument("--periodic", action="store_true",
+                        help="the reference file is one period")
+    parser.add_argument("--strain", action="store_true",
+                        help="the reference (amplitudes, mean, file) is strain, not metres")
+    parser.add_argument("--columns", help="column names of a reference file without a header")
+    parser.add_argument("--current-limit", help="L (|input| <= L) or LO,HI: A of coil "
+                        "current, or A/m of AC field for an actuator without turns per metre")
+    parser.add_argument("--slew-limit", type=POSITIVE,
+                        help="largest |d input/dt|, A/s (or A/m per s)")
+    parser.add_argument("--tolerance", type=number_at_least_zero(), default=1e-6,
+                        help="stop refining at this rms error / peak-to-peak (default 1e-6)")
+    parser.add_argument("--max-steps", type=POSITIVE_INT, default=100,
+                        help="Levenberg–Marquardt steps at most")
+    parser.add_argument("--no-refine", action="store_true",
+                        help="the inverse model alone")
+    parser.add_argument("--measured", help="a run of the actuator (t, I or H, y at the "
+                        "reference's samples): write the next input of iterative learning")
+    parser.add_argument("--gain", type=POSITIVE, default=1.0,
+                        help="learning gain in (0, 1] for --measured")
+    parser.add_argument("--csv", help="write t, input and predicted displacement here")
+    parser.add_argument("--png", help="write a figure here (needs matplotlib)")
+    parser.add_argument("--out", help="write a JSON summary here")
+    parser.add_argument("--json", action="store_true", help="print a JSON summary")
+    parser.add_argument("--periods", type=COUNT, default=1,
+                        help="periods of a periodic input written to --csv (default 1)")
+    parser.set_defaults(func=run)
+
+
+def number_at_least_zero():
+    from .options import number
+
+    return number(float, 0.0, False, "a number >= 0")
+
+
+def _floats(text: str, option: str) -> list[float]:
+    import math
+
+    try:
+        values = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise CLIError(f"{option} {text!r}: give comma-separated numbers.") from None
+    if not values or not all(math.isfinite(v) for v in values):
+        raise CLIError(f"{option} {text!r}: give finite comma-separated numbers.")
+    return values
+
+
+def _conflicts(args) -> None:
+    """Options that do not go together are refused, not resolved silently."""
+    builder = args.reference in ("sine", "tones")
+    if args.model and (args.params != "table1" or args.actuator != "actuator1"
+                       or args.variant != "energy" or args.substeps != DEFAULT_SUBSTEPS):
+        raise CLIError("--model holds the parameters, actuator, form and substeps; leave "
+                       "out --params, --actuator, --variant and --substeps.")
+    if args.reference == "sine" and (args.tones or args.phases):
+        raise CLIError("--tones and --phases go with --reference tones, not sine.")
+    if args.reference == "tones" and (args.amplitude is not None or not args.tones):
+        raise CLIError("--reference tones needs --tones A1,A2,… (m) and no --amplitude.")
+    if not builder and (args.amplitude is not None or args.tones or args.phases
+                        or args.mean is not None):
+        raise CLIError(f"--reference {args.reference} is a file: --amplitude, --tones, "
+                       "--phases and --mean build a sine or tones instead.")
+    if args.periodic and builder:
+        raise CLIError("--periodic applies to a reference file (a sine or tones is periodic).")
+    if args.periodic and args.frequency is not None:
+        raise CLIError("--periodic (the file is one period) and --frequency (the file holds "
+                       "periods of 1/f) exclude each other; give one.")
+    if args.no_refine and args.measured:
+        raise CLIError("--no-refine and --measured exclude each other.")
+    if args.gain > 1 and args.measured:
+        raise CLIError(f"--gain {args.gain:g}: the learning gain must lie in (0, 1].")
+
+
+def _model(args):
+    import jaxhyst as jh
+
+    if args.model:
+        try:
+            return jh.load_model(args.model)
+        except FileNotFoundError:
+            raise CLIError(f"--model {args.model}: no such file.") from None
+    return jh.Model(parameters_arg(args.params), actuator_arg(args.actuator),
+                    variant_from_name(args.variant), args.substeps)
+
+
+def _limit(args):
+    if args.current_limit is None:
+        return None
+    values = _floats(args.current_limit, "--current-limit")
+    if len(values) > 2:
+        raise CLIError(f"--current-limit {args.current_limit!r}: give L or LO,HI.")
+    return values[0] if len(values) == 1 else tuple(values)
+
+
+def _reference(args, model, limit):
+    from jaxhyst.control import multitone_reference, reference_from_record
+    from jaxhyst.control.limits import InputLimits
+    from jaxhyst.control.reach import reach
+    from jaxhyst.control.tracking import input_gain
+
+    lr = float(model.actuator.lr)
+    to_m = lr if args.strain else 1.0
+    if args.reference in ("sine", "tones"):
+        f = args.frequency or 100.0
+        amplitudes = ([args.amplitude] if args.reference == "sine" and args.amplitude
+                      else _floats(args.tones, "--tones") if args.tones else None)
+        mean = args.mean
+        if amplitudes is None or mean is None:
+            if limit is None:
+                raise CLIError("give the reference (--amplitude and --mean, m), or "
+                               "--current-limit to derive one from the stroke it allows.")
+            gain, unit = input_gain(model)
+            lo, hi = reach(model, InputLimits.of(limit, unit=unit), gain).y
+            mean = 0.5 * (lo + hi) / to_m if mean is None else mean
+            if amplitudes is None:
+                amplitudes = [DEFAULT_SWING * (hi - lo) / to_m]
+            note("compensate", f"reference derived from the stroke {lo * 1e6:.4g}–"
+                               f"{hi * 1e6:.4g} µm that the limit allows: mean "
+                               f"{mean * to_m * 1e6:.4g} µm, amplitude "
+                               f"{amplitudes[0] * to_m * 1e6:.4g} µm")
+        phases = _floats(args.phases, "--phases") if args.phases else None
+        if phases is not None and len(phases) != len(amplitudes):
+            raise CLIError(f"--phases: give one per tone ({len(amplitudes)}).")
+        ref = multitone_reference(f, [a * to_m for a in amplitudes], mean * to_m,
+                                  phases=phases, samples_per_period=args.samples_per_period)
+        what = (f"{f:g} Hz sine" if len(amplitudes) == 1 else
+                f"{len(amplitudes)} tones at harmonics of {f:g} Hz")
+        return ref, what
+    from jaxhyst.io import read_loops
+
+    loops = read_loops(args.reference, args.columns, drive=False)
+    if len(loops) != 1:
+        raise CLIError(f"{args.reference} holds {len(loops)} loops; give one reference.")
+    loop = loops[0]
+    if loop.t is None:
+        raise CLIError(f"{args.reference} has no time column t (s); a reference needs times.")
+    kind = "strain" if args.strain else "y"
+    if kind not in loop.signals:
+        other = "strain" if kind == "y" else "y"
+        hint = (f" (it has {other}: {'add' if other == 'strain' else 'drop'} --strain)"
+                if other in loop.signals else "")
+        raise CLIError(f"{args.reference} has no {kind} column{hint}.")
+    values = loop.signals[kind]
+    ref = (reference_from_record(loop.t, strain=values, actuator=model.actuator,
+                                 periodic=args.periodic, frequency=args.frequency)
+           if args.strain else
+           reference_from_record(loop.t, values, periodic=args.periodic,
+                                 frequency=args.frequency))
+    return ref, f"{args.reference} ({'one period' if ref.periodic else 'a record'})"
+
+
+def _measured(args, model, reference):
+    """(applied input, measured displacement) at the reference's samples, from the run
+    file of --measured (the last whole period of a longer periodic run)."""
+    import numpy as np
+
+    from jaxhyst.io import read_loops
+
+    loops = read_loops(args.measured)
+    if len(loops) != 1:
+        raise CLIError(f"--measured {args.measured}: holds {len(loops)} loops; give one run.")
+    loop = loops[0]
+    if "y" not in loop.signals:
+        raise CLIError(f"--measured {args.measured}: no displacement column y (m).")
+    if model.actuator.n is not None:
+        if loop.I is None:
+            raise CLIError(f"--measured {args.measured}: no current column I (A), the input "
+                           f"of {model.actuator.name}.")
+        u = loop.I
+    else:
+        if loop.H is None:
+            raise CLIError(f"--measured {args.measured}: no field column H (A/m), the input "
+                           f"of {model.actuator.name}.")
+        u = loop.H - float(model.actuator.Hb)
+    y, N = loop.signals["y"], reference.n_samples
+    if reference.periodic and u.shape[0] > N and u.shape[0] % N in (0, 1):
+        whole = (u.shape[0] // N) * N  # (a closing sample is dropped)
+        u, y = u[whole - N:whole], y[whole - N:whole]
+    if u.shape[0] != N:
+        raise CLIError(f"--measured {args.measured}: {u.shape[0]} samples, but the reference "
+                       f"has {N}{' per period' if reference.periodic else ''}; measure at its "
+                       "samples.")
+    return np.asarray(u, float), np.asarray(y, float)
+
+
+def run(args) -> int:
+    import warnings
+
+    import numpy as np
+
+    from jaxhyst.control import IterativeLearning, compensate
+    from jaxhyst.control.compensate import rms_error
+    from jaxhyst.control.tracking import Tracking, evaluate
+    from jaxhyst.io import write_columns_csv, write_json
+    from jaxhyst.progress import TextProgressMeter
+
+    check_outputs(args)
+    _conflicts(args)
+    model = _model(args)
+    limit = _limit(args)
+    reference, what = _reference(args, model, limit)
+    options = dict(current_limit=limit, slew_limit=args.slew_limit, tolerance=args.tolerance,
+                   max_steps=args.max_steps, progress=TextProgressMeter())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if args.measured:
+            applied, measured = _measured(args, model, reference)
+            learner = IterativeLearning.of(model, reference, gain=args.gain, **options)
+            state = learner.step(learner.state_for(applied), measured)
+            result = learner.compensation
+            u = state.input
+            y = evaluate(Tracking.of(model, reference, result.run_in_periods), u)
+        else:
+            result = compensate(model, reference, refine=not args.no_refine, **options)
+            u, y = result.input, result.displacement
+    for w in caught:
+        if not issubclass(w.category, UserWarning) or "beyond the actuator" not in str(
+                w.message):
+            warn(args, " ".join(str(w.message).split()))
+    summary = {"model": args.model or f"{args.params}, {model.actuator.name}",
+               "reference": what, **result.to_dict()}
+    if args.measured:
+        summary["learning"] = {"measured": args.measured,
+                               "measured_error": rms_error(measured, reference.displacement,
+                                                           reference.scale),
+                               "predicted_error_of_next": rms_error(y, reference.displacement,
+                                                                    reference.scale)}
+    wrote = []
+    if args.png:
+        from jaxhyst.plots import plot_compensation
+
+        plot_compensation(result, args.png, title=f"{model.actuator.name}: {what}")
+        wrote.append(args.png)
+    if args.csv:
+        t = np.asarray(reference.t)
+        periods = max(int(args.periods), 1) if reference.periodic else 1
+        if periods > 1:
+            t = t[0] + reference.dt * np.arange(periods * t.shape[0])
+            u, y = np.tile(u, periods), np.tile(y, periods)
+        columns = {"t [s]": t}
+        if model.actuator.n is not None:
+            columns["I [A]"] = u
+        columns["H [A/m]"] = result.gain * u + result.bias
+        columns["y [m]"] = y
+        write_columns_csv(args.csv, columns)
+        wrote.append(args.csv)
+    if args.out:
+        write_json(args.out, summary)
+        wrote.append(args.out)
+    summary["wrote"] = wrote
+    text = [result.summary()]
+    if args.measured:
+        learned = summary["learning"]
+        text.append(f"  learning: measured rms error {learned['measured_error']:.3e}; the "
+                    f"next input is predicted (on the model) at "
+                    f"{learned['predicted_error_of_next']:.3e}")
+    text += [f"  wrote {f}" for f in wrote]
+    print_result(args, summary, "\n".join(text))
+    stopped_short = not args.no_refine and result.outcome != "successful"
+    return 3 if (result.unreachable or stopped_short) else 0
