@@ -282,3 +282,37 @@ def test_nonuniform_time_matches_reference():
     _, y_ref = reference_simulation(jh.TABLE1_TRUE, jh.ACTUATOR1, drive)
     y = jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive).y
     assert _rel_err(y, y_ref) <= 1e-5
+
+
+def test_the_branch_free_path_of_an_accelerator_gives_the_same_values():
+    """On a GPU the time loop computes both sides of its rare branches and selects
+    (interval.on_accelerator); forced on the CPU it gives the same signals and
+    derivatives as the branching loop (a drive of a length no other test traces)."""
+    import jax
+
+    from jaxhyst.model import interval, magnetization
+
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=77)
+    x = jh.TABLE1_TRUE.to_array()
+
+    def run():
+        jax.clear_caches()  # (and the time loops' own traces)
+        magnetization._SCANS.clear()
+        magnetization._SENSITIVITY.clear()
+
+        def f(x):
+            return jh.simulate_unchecked(jh.Parameters.from_array(x), jh.ACTUATOR1, drive).y
+
+        conds = str(jax.make_jaxpr(f)(x)).count("cond[")
+        return np.asarray(jax.jit(f)(x)), np.asarray(jax.jit(jax.jacfwd(f))(x)), conds
+
+    y, J, conds = run()
+    interval.FORCE_BRANCH_FREE = True
+    try:
+        y_free, J_free, conds_free = run()
+    finally:
+        interval.FORCE_BRANCH_FREE = None
+        run()
+    assert conds > 0 and conds_free == 0
+    assert np.max(np.abs(y_free - y)) <= 1e-12 * np.max(np.abs(y))
+    assert np.max(np.abs(J_free - J)) <= 1e-9 * np.max(np.abs(J))

@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 
 from ..params import MU0, Parameters
-from .interval import direction_of, interval_map
+from .interval import direction_of, interval_map, on_accelerator
 from .jiles_atherton import AbstractJAVariant
 from .losses import Losses, dynamic_field
 
@@ -74,7 +74,7 @@ def _end_field(variant, S, p, losses, H0, H1, dt, M0, h0):
         G, dG = jax.jvp(balance, (h1,), (jnp.ones_like(h1),))
         return jnp.clip(h1 - G / dG, lo, hi)
 
-    return jax.lax.fori_loop(0, NEWTON_STEPS, newton, h1)
+    return jax.lax.fori_loop(0, NEWTON_STEPS, newton, h1, unroll=on_accelerator())
 
 
 @_end_field.defjvp

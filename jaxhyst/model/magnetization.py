@@ -21,7 +21,7 @@ import jax.numpy as jnp
 
 from ..params import Parameters
 from ._batching import batch_native
-from .interval import direction_of, interval_map, interval_map_batched
+from .interval import branch, direction_of, interval_map, interval_map_batched, on_accelerator
 from .jiles_atherton import AbstractJAVariant
 
 
@@ -36,8 +36,8 @@ def _previous_end_slope(slope, p, H0, M0, delta, delta_prev, k_start):
     ``k_start``, unless the field reversed here (δ ≠ δ_prev); then one evaluation with
     δ_prev, computed only when some member reversed."""
     same = delta == delta_prev
-    return jax.lax.cond(jnp.all(same), lambda: k_start,
-                        lambda: jnp.where(same, k_start, slope(H0, M0, delta_prev, p)))
+    return branch(jnp.all(same), lambda: k_start,
+                  lambda: jnp.where(same, k_start, slope(H0, M0, delta_prev, p)))
 
 
 def _time_loop(variant, p, H, substeps: int, batched: bool):
@@ -209,7 +209,7 @@ def _magnetization_path_jvp(primals, tangents, *, variant, substeps):
         return a_n * dM + r_n, dM
 
     _, dM_start = jax.lax.scan(recurrence, jnp.zeros_like(r[0, S - 1]),
-                               (a[:, S - 1], r[:, S - 1]))
+                               (a[:, S - 1], r[:, S - 1]), unroll=8 if on_accelerator() else 1)
     d_out = a * dM_start[:, None] + r
     # end slopes: the loop forms interval n's in interval n + 1 (last column), which
     # leaves the last interval's, formed here with its tangent
