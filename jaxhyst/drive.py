@@ -28,6 +28,11 @@ UNIFORM_TOLERANCE = 1e-4
 #: Largest applied field accepted, A/m (1e9 A/m ≈ 1.26 kT: beyond any laboratory field; a
 #: larger value is a unit or column mistake and would overflow the model).
 MAX_FIELD = 1e9
+#: Highest drive frequency accepted, Hz (magnetic hysteresis is measured up to MHz).
+MAX_FREQUENCY = 1e8
+#: Most samples a drive builder makes (each sample of a simulation holds ~100 bytes of
+#: signals, more under transformations): a larger request is a typing mistake.
+MAX_SAMPLES = 50_000_000
 
 
 class Drive(eqx.Module):
@@ -271,7 +276,8 @@ def _sinusoidal(frequency, amplitude, offset, scale, shift, periods, samples_per
                 run_in_periods, ramp_periods) -> Drive:
     """`sinusoidal_field` of H = scale·(offset + amplitude·sin) + shift, scale·offset +
     shift and scale·amplitude formed as `sinusoidal_current` forms them."""
-    _check_number("frequency", frequency, lambda v: v > 0, " > 0 Hz")
+    _check_number("frequency", frequency, lambda v: 0 < v <= MAX_FREQUENCY,
+                  f" in (0, {MAX_FREQUENCY:g}] Hz (magnetic hysteresis is measured up to MHz)")
     _check_number("amplitude", amplitude, lambda v: True, " (A/m)")
     _check_number("offset", offset, lambda v: True, " (A/m)")
     if int(samples_per_period) != samples_per_period or int(samples_per_period) < 4:
@@ -281,6 +287,11 @@ def _sinusoidal(frequency, amplitude, offset, scale, shift, periods, samples_per
         raise ValueError("periods must be > 0, run_in_periods and ramp_periods >= 0; got "
                          f"{periods!r}, {run_in_periods!r}, {ramp_periods!r}.")
     spp = int(samples_per_period)
+    total = (periods + run_in_periods + ramp_periods) * spp
+    if total > MAX_SAMPLES:
+        raise ValueError(f"the drive would have {total:.3g} samples ({periods:g} periods of "
+                         f"{spp}, with the run-in), about {total * 1e-7:.2g} GB simulated; at "
+                         f"most {MAX_SAMPLES:.0e}: observe fewer periods or samples.")
     n_ramp = int(round(ramp_periods * spp))
     n_run = int(run_in_periods) * spp
     n_obs = int(round(periods * spp)) + 1  # closed loop: include the end point

@@ -5,15 +5,25 @@ at the result (one jacfwd of the model). This module sits above both packages, s
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 from . import identify
 from .analysis.identifiability import identifiability
+from .identify.signal import sampling_error
 
 
 def attach_report(result, problem, report: bool = True):
-    """``result`` with its identifiability report (or the reason it is missing)."""
-    if not report or result.result == "nonfinite":
+    """``result`` with its identifiability report (or the reason it is missing) and the
+    model's error at the data's sampling (`jaxhyst.identify.signal.sampling_error`;
+    ``result.warnings`` says so where it exceeds the documented accuracy)."""
+    if result.result == "nonfinite":
+        return result
+    error = sampling_error(problem, result.params)
+    if error is not None:  # (its warning is among the result's warnings)
+        result = dataclasses.replace(result, sampling_error=error,
+                                     substeps=int(problem.substeps))
+    if not report:
         return result
     try:
         return result.with_report(identifiability(problem, result.params))

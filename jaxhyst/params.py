@@ -138,16 +138,28 @@ def is_concrete(x) -> bool:
 
 
 #: Physical range of each parameter: name → (test on a numpy value, the rule in words).
+#: Beyond the signs, the ranges are those of any material or actuator, with a wide margin:
+#: a value outside is a unit or typing mistake (the message says why).
 PHYSICAL_RULES = {
-    "Ms": (lambda v: v > 0, "must be > 0 (saturation magnetization, A/m)"),
-    "a": (lambda v: v > 0, "must be > 0 (Langevin width, A/m)"),
-    "k": (lambda v: v > 0, "must be > 0 (pinning parameter, A/m)"),
+    "Ms": (lambda v: (v > 0) & (v <= 1e7),
+           "must lie in (0, 1e7] A/m (saturation magnetization; the highest of any material, "
+           "Fe–Co, is 1.95e6 A/m)"),
+    "a": (lambda v: (v >= 1e-6) & (v <= 1e9),
+          "must lie in [1e-6, 1e9] A/m (Langevin width: below it the anhysteretic is a step, "
+          "above it beyond any laboratory field)"),
+    "k": (lambda v: (v >= 1e-6) & (v <= 1e9),
+          "must lie in [1e-6, 1e9] A/m (pinning parameter, of the order of the coercive "
+          "field: 0.1 A/m for the softest alloys, 1e6 A/m for the hardest magnets)"),
+    "alpha": (lambda v: np.abs(v) <= 10.0,
+              "must lie in [-10, 10] (mean-field coupling; identified values are 1e-5–0.1)"),
     "c": (lambda v: (v >= 0) & (v <= 1), "must lie in [0, 1] (reversibility)"),
-    "lambda_s": (lambda v: v >= 0, "must be >= 0 (saturation magnetostriction)"),
-    "E": (lambda v: v >= 0, "must be >= 0 (Young's modulus, N/m^2)"),
-    "Kz": (lambda v: v > 0, "must be > 0 (stiffness, N/m)"),
-    "Mz": (lambda v: v > 0, "must be > 0 (moving mass, kg)"),
-    "Cz": (lambda v: v >= 0, "must be >= 0 (damping, N*s/m)"),
+    "lambda_s": (lambda v: (v >= 0) & (v <= 0.1),
+                 "must lie in [0, 0.1] (saturation magnetostriction: Terfenol-D's is 2e-3)"),
+    "E": (lambda v: (v >= 0) & (v <= 1e13),
+          "must lie in [0, 1e13] N/m^2 (Young's modulus: diamond's is 1.2e12)"),
+    "Kz": (lambda v: (v > 0) & (v <= 1e13), "must lie in (0, 1e13] N/m (stiffness)"),
+    "Mz": (lambda v: (v > 0) & (v <= 1e6), "must lie in (0, 1e6] kg (moving mass)"),
+    "Cz": (lambda v: (v >= 0) & (v <= 1e13), "must lie in [0, 1e13] N*s/m (damping)"),
 }
 
 
@@ -226,6 +238,11 @@ class Bounds(eqx.Module):
         bad = [n for n, l_, h_ in zip(NAMES, lo, hi, strict=True) if not l_ <= h_]
         if bad:
             raise ValueError(f"Bounds have lower > upper for {bad}; swap or fix them.")
+        for n, l_, h_ in zip(NAMES, lo, hi, strict=True):
+            ok, rule = PHYSICAL_RULES[n]
+            for which, v in (("lower", l_), ("upper", h_)):
+                if not np.all(ok(v)):
+                    raise ValueError(f"Bounds: the {which} bound of {n} is {v!r}; {n} {rule}.")
 
     @classmethod
     def from_dict(cls, d: dict[str, tuple[float, float]]) -> Bounds:

@@ -32,9 +32,13 @@ def _log(d, name):
 
 
 def test_simulate_csv_identify_json_recovers_the_parameters():
+    """The README's own commands (simulate at 50 samples per period, identify the CSV):
+    they work and print no warning (the estimated error is 5e-6, inside 1e-5)."""
     d, status = _finished("e2e")
     assert status["simulate"] == 0, _log(d, "sim.log")
     assert status["identify"] == 0, _log(d, "identify.log")
+    for log in ("sim.log", "identify.log"):
+        assert "warning" not in _log(d, log), _log(d, log)
     with open(os.path.join(d, "result.json")) as fh:
         res = json.load(fh)
     truth = jh.TABLE1_TRUE.to_dict()
@@ -67,6 +71,7 @@ def test_identify_killed_midway_resumes_from_its_checkpoint():
 def test_reproduce_table1_quick_runs():
     d, status = _finished("reproduce")
     assert status["reproduce"] == 0, _log(d, "reproduce.log")
+    assert "warning" not in _log(d, "reproduce.log")  # (a README command)
     with open(os.path.join(d, "table1.json")) as fh:
         study = json.load(fh)
     assert [r["method"] for r in study["runs"]] == ["GATR1", "GALM1", "GATR2", "GALM2"]
@@ -74,6 +79,13 @@ def test_reproduce_table1_quick_runs():
         assert r["cost"] < 1e-12 and r["combination_error"] < 1e-4, r["method"]
     assert "| Ms |" in open(os.path.join(d, "table1.md")).read()
     print(f"reproduce table1 --quick: {status['seconds']:.0f} s")
+    # interrupted after its first run: exit 130, and every file says it is partial
+    assert status["partial"] == 130, _log(d, "partial.log")
+    with open(os.path.join(d, "partial", "table1.json")) as fh:
+        partial = json.load(fh)
+    assert partial["partial"] and len(partial["runs"]) < partial["planned_runs"] == 4
+    md = open(os.path.join(d, "partial", "table1.md")).read()
+    assert md.startswith("**PARTIAL: interrupted**")
 
 
 def test_sharded_population_matches_unsharded():

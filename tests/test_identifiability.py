@@ -146,3 +146,33 @@ def test_profile_likelihood_agrees_with_the_linear_interval_and_flags_flat_profi
                         jnp.asarray(problem.data + 300 * (data[0] - problem.data)))
     flat = profile_likelihood(noisy, best, "c", grid=np.linspace(0.0, 0.3, 7), **same)
     assert not flat.identifiable and "not bounded" in str(flat)
+
+
+def test_intervals_stay_calibrated_when_fits_end_on_a_bound():
+    """Issue 33: c's box starts at its true value (0.18, a constraint the truth sits on,
+    as at a physical limit), so about half of the noisy replicates end with c on that
+    bound. The report's intervals — c's one-sided from its bound there, the others from
+    the profile with that constraint instead of with c held fixed, with Feldman–Cousins
+    thresholds — cover the truth in 90–98 % of 480 replicates for every parameter.
+    (Over 1 200 replicates: 94.8, 95.0, 95.2 and 94.5 %; with the bound a quarter or
+    half a standard error below the truth, k is covered in ~96.8 %.)"""
+    from jaxhyst.analysis import interval_coverage
+
+    p = jh.TABLE1_TRUE
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=50)
+    box = jh.Bounds(jh.TABLE1_BOUNDS.lower.replace(c=0.18), jh.TABLE1_BOUNDS.upper)
+    problem = jh.synthetic_problem(p, drive, jh.ACTUATOR1, box,
+                                   fixed=["Ms", "lambda_s", "E", "Kz", "Mz", "Cz"])
+    y = np.asarray(problem.data)
+    n = 2 * R
+    data = y + NOISE * np.max(np.abs(y)) * np.random.default_rng(1).standard_normal((n, y.size))
+    fits = fit_replicates(problem, data, p.replace(c=0.2), solver="lm", max_steps=60,
+                          batch_size=120)
+    one_sided = np.mean([m[3] == "one-sided" for m in fits["interval_methods"]])
+    assert 0.3 < one_sided < 0.7, one_sided  # the bound is active in many replicates
+    truth = np.asarray(problem.space.free_values(p))
+    cov = interval_coverage(fits["intervals"], truth)
+    print("coverage with c on its bound in", f"{one_sided:.0%}", "of the replicates:",
+          dict(zip(fits["names"], np.round(cov, 3), strict=True)))
+    assert np.all((cov >= 0.90) & (cov <= 0.98)), cov
+    assert np.all(fits["intervals"][:, 3, 0] >= 0.18)  # inside the box

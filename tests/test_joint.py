@@ -108,10 +108,12 @@ def test_mnzn_loops_joint_fit_reaches_the_stated_rms_error():
     # quoted in the data's README give 48–75 mT per loop with the same model (docs).
     print(res)
     assert res.rms_error < 6.5e-3, res.rms_error
-    # c ends on its physical limit 1: an active constraint, not a null direction
+    # c ends on its physical limit 1: an active constraint, not a null direction; its
+    # interval is one-sided from the limit
     assert dict(res.at_bound) == {"c": ("upper", 1.0)}
     assert "physical limit c = 1" in res.warnings[0]
-    assert not res.report.null_directions and res.report.std_errors["c"] is None
+    assert not res.report.null_directions and res.report.intervals["c"][1] == 1.0
+    assert res.report.interval_methods["c"] == "one-sided"
     for n in ("Ms", "a", "k"):
         assert res.report.std_errors[n] is not None
 

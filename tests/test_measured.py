@@ -99,7 +99,8 @@ def test_digitized_loops_are_identified_without_options_within_their_intervals()
     bound, the truth lies within the 95 % interval in at least 80 % of the 25 cases
     (measured: 84 %; the noise on H biases slightly) and always within 4 standard errors.
     Then a box that excludes the truth puts k on its bound, which the result and the
-    report treat as an active constraint."""
+    report treat as an active constraint: k's interval is one-sided from its bound, and
+    the others' come from the profile with that constraint (not with k held fixed)."""
     z = []
     for seed in range(5):
         H, B = _digitized(seed)
@@ -119,21 +120,45 @@ def test_digitized_loops_are_identified_without_options_within_their_intervals()
     assert res_b.at_bound == {"k": ("lower", 12.5)}
     assert any("k ended at its lower bound" in w for w in res_b.warnings)
     rep_b = res_b.report
-    assert rep_b.at_bound["k"][0] == "lower" and rep_b.std_errors["k"] is None
-    assert not rep_b.null_directions and rep_b.rank == 4  # not a null direction
+    assert rep_b.at_bound["k"][0] == "lower" and rep_b.intervals["k"][0] == 12.5
+    assert rep_b.interval_methods["k"] == "one-sided" and rep_b.intervals["k"][1] > 12.5
+    assert {rep_b.interval_methods[n] for n in res_b.free if n != "k"} == {"bound-aware"}
+    assert not rep_b.null_directions and rep_b.rank == 5  # not a null direction
     assert "k" not in rep_b.suggest_fixed()
     assert all(np.isfinite(c["value"]) and np.isfinite(c["std_error"])
                for c in rep_b.combinations)
     assert "AT ITS LOWER BOUND" in str(rep_b)
 
 
-def test_coarse_records_warn_with_the_substeps_they_need():
-    H = 100 * np.cos(2 * np.pi * np.arange(20) / 20)  # 20 samples per loop
-    with pytest.warns(SamplingWarning, match="use substeps=16"):
-        jh.loop_problem(H, 1e-3 * H)
+def test_coarse_records_warn_from_an_estimate_with_the_substeps_that_suffice():
+    """20 samples per loop of a sharp loop: the fit's result warns with the error
+    estimated at the fitted parameters, and the substeps it names bring the error (again
+    estimated) within the documented 1e-5. Building the problem warns of nothing."""
+    from jaxhyst.identify.signal import sampling_error
+    from jaxhyst.model.accuracy import substeps_for
+
+    H = 100 * np.cos(2 * np.pi * np.arange(20) / 20)
+    B = 0.3 * np.tanh((H + 10 * np.sign(np.gradient(-H))) / 30)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        jh.loop_problem(H, 1e-3 * H, substeps=16)
+        problem = jh.loop_problem(H, B)
+    result = jh.solve(problem, np.full(problem.space.n_free, 0.5), report=False)
+    assert result.sampling_error > 1e-4
+    need = substeps_for(result.sampling_error, 2)
+    assert any(f"use {need} substeps" in w for w in result.warnings)
+    assert 1e-7 < sampling_error(jh.loop_problem(H, B, substeps=need), result.params) < 1e-5
+
+
+def test_simulate_warns_where_its_estimated_error_exceeds_the_documented_accuracy():
+    """Table 1 drive: 20 samples per period are too coarse for 2 substeps (error ~4e-4),
+    50 are not (~5e-6, the README's command), whatever the field step rule said."""
+    coarse = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=20)
+    with pytest.warns(SamplingWarning, match=r"estimated at 0.000[2-6]"):
+        jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, coarse)
+    fine = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=50)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, fine)
 
 
 def _result(outcome="successful", groups=None, at_bound=None):

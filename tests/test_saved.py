@@ -71,9 +71,8 @@ def test_a_model_written_to_a_device_leaves_the_device(tmp_path):
 
 def test_a_fitted_problem_gives_its_model(tmp_path):
     drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=40)
-    with pytest.warns(jh.identify.SamplingWarning):
-        problem = jh.synthetic_problem(jh.TABLE1_TRUE, drive, jh.ACTUATOR1, jh.TABLE1_BOUNDS,
-                                       variant=jh.VenkataramanJA())
+    problem = jh.synthetic_problem(jh.TABLE1_TRUE, drive, jh.ACTUATOR1, jh.TABLE1_BOUNDS,
+                                   variant=jh.VenkataramanJA())
     model = problem.model(jh.TABLE1_TRUE)
     assert isinstance(model.variant, jh.VenkataramanJA)
     np.testing.assert_array_equal(drive.observed(model.simulate(drive).y), problem.data)

@@ -413,7 +413,7 @@ def test_batched_parameters_given_to_simulate_are_refused_with_the_fix():
         jh.simulate(batch, jh.ACTUATOR1, _drive())
 
 
-@pytest.mark.filterwarnings("ignore::jaxhyst.identify.signal.SamplingWarning")
+@pytest.mark.filterwarnings("ignore::jaxhyst.identify.SamplingWarning")
 def test_a_local_solve_traces_each_time_loop_once(monkeypatch):
     # the loops take seconds to trace: the forward loop (data, final evaluation) and the
     # partials pass (linearized in the solver's init and again in its step, under vmap)

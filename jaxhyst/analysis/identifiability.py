@@ -41,8 +41,9 @@ import numpy as np
 
 from ..identify.result import bound_status
 from ..params import NAMES
+from .intervals import bound_aware_intervals, box_in_x, x_side
 from .nullspace import MAX_EXPONENT, PREFER_FIX, analyse
-from .report import IdentifiabilityReport, _unit
+from .report import Z95, IdentifiabilityReport, _unit
 
 #: float64 resolution: the smallest noise level estimated for a group (relative to its
 #: scale), so that data an exact fit reproduces bit for bit do not give σ = 0.
@@ -126,12 +127,11 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     status = bound_status(values, lower, upper)
     at_bound = {names[i]: (b, float(lower[i] if b == "lower" else upper[i]))
                 for i, b in status.items()}
-    keep = [i for i in range(len(names)) if i not in status]
-    if not keep:
-        raise ValueError(f"every free parameter ({', '.join(names)}) is at a bound; the fit "
-                         "is constrained everywhere: widen the bounds.")
-    a = _expand(analyse([names[i] for i in keep], values[keep], scale[keep], J[:, keep], e,
-                         null_tol), names, keep)
+    # every free parameter in the analysis (one at a bound is a constraint, not knowledge:
+    # holding it fixed would shrink the intervals of everything correlated with it)
+    a = analyse(list(names), values, scale, J, e, null_tol)
+    a["intervals"], methods = _bound_aware(names, values, scale, lower, upper, status, J, e,
+                                           a["std_errors"])
     group_sigma = {g.name: (float(s), g.sigma is None)
                    for g, s in zip(problem.groups, sigma, strict=True)}
     combos = []
@@ -144,6 +144,7 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
         std_errors=a["std_errors"], intervals=a["intervals"], correlation=a["correlation"],
         cov_log=a["cov_log"], null_space=a["null_space"], jacobian=J, residuals=e,
         scale=scale, max_rel_se=max_rel_se, at_bound=at_bound, bounds=(lower, upper),
+        interval_methods=methods,
     )  # fmt: skip
     for c in a["combos"]:
         if max(abs(p) for p in c.values()) > MAX_EXPONENT:
@@ -153,25 +154,78 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
         if np.isfinite(combo["value"]) and combo["std_error"] is not None and \
                 np.isfinite(combo["std_error"]):
             combos.append(combo)
+    rep.linearity.update(_linearity(problem, rep, e, sigma))
     return rep
 
 
-def _expand(a: dict, names, keep) -> dict:
-    """The analysis of the columns ``keep`` written back to all ``names`` (the others —
-    parameters at a bound — with no error, zero covariance, NaN correlation)."""
-    n, k = len(names), np.asarray(keep)
-    if len(keep) == n:
-        return a
-    cov = np.zeros((n, n))
-    cov[np.ix_(k, k)] = a["cov_log"]
-    corr = np.full((n, n), np.nan)
-    corr[np.ix_(k, k)] = a["correlation"]
-    null = np.zeros((a["null_space"].shape[0], n))
-    null[:, k] = a["null_space"]
-    se = {nm: a["std_errors"].get(nm) for nm in names}
-    ci = {nm: a["intervals"].get(nm) for nm in names}
-    return {**a, "names": tuple(names), "cov_log": cov, "correlation": corr,
-            "null_space": null, "std_errors": se, "intervals": ci}
+def _linearity(problem, rep, e, sigma) -> dict:
+    """{parameter or combination text: (Δχ² at the lower end, at the upper end) / the
+    linear model's} along the linearised profile path to each end of its interval: 1 where
+    the cost is quadratic there; far from 1 the interval is not to be trusted
+    (`IdentifiabilityReport.nonlinear`)."""
+    names = rep.names
+    C = rep.cov_log
+    directions, labels = [], []
+    for i, name in enumerate(names):
+        if rep.intervals.get(name) is None or name in (rep.at_bound or {}) or not C[i, i] > 0:
+            continue
+        directions.append(C[:, i] / np.sqrt(C[i, i]))
+        labels.append(name)
+    for c in rep.combinations:
+        p = np.array([float(c["exponents"].get(nm, 0.0)) for nm in names])
+        var = float(p @ C @ p)
+        if var > 0:
+            directions.append(C @ p / np.sqrt(var))
+            labels.append(c["text"])
+    if not directions:
+        return {}
+    D = np.array(directions)
+    lo, hi = np.asarray(rep.bounds[0]), np.asarray(rep.bounds[1])
+    points = [np.clip(rep.values + s * Z95 * d * rep.scale, lo, hi) for d in D for s in (-1, 1)]
+    whitening = np.repeat(np.asarray(sigma), [g.size for g in problem.groups])
+    r = np.asarray(_residuals_at(problem, jnp.asarray(np.array(points))))
+    chi2 = np.sum((r / whitening) ** 2, axis=1) + _prior_chi2(problem, np.array(points))
+    base = float(np.sum(e[: whitening.size] ** 2)) + float(np.sum(e[whitening.size:] ** 2))
+    delta = (chi2 - base).reshape(len(labels), 2) / Z95**2
+    return {label: (float(d[0]), float(d[1])) for label, d in zip(labels, delta, strict=True)}
+
+
+def _prior_chi2(problem, points) -> np.ndarray:
+    if not problem.priors:
+        return np.zeros(points.shape[0])
+    idx = [problem.space.names.index(p.name) for p in problem.priors]
+    mean = np.array([p.mean for p in problem.priors])
+    sd = np.array([p.sd for p in problem.priors])
+    return np.sum(((points[:, idx] - mean) / sd) ** 2, axis=1)
+
+
+@eqx.filter_jit
+def _residuals_at(problem, X):
+    """The raw residuals (model − data, all groups) at each row of free values X."""
+    def one(x):
+        r = problem.group_residuals(problem.space.params_from_free(x))
+        return jnp.concatenate([jnp.ravel(g) for g in r])
+
+    return jax.vmap(one)(X)
+
+
+def _bound_aware(names, values, scale, lower, upper, status, J, e, std_errors):
+    """({name: 95 % interval (SI) or None}, {name: how it was made}) by the linearised
+    profile likelihood with the active bounds as constraints
+    (`jaxhyst.analysis.intervals`)."""
+    box = box_in_x(values, scale, lower, upper)
+    sides = {i: x_side(b, scale[i]) for i, b in status.items()}
+    identifiable = np.array([std_errors[n] is not None for n in names])
+    lo, hi, how = bound_aware_intervals(J, e, box, sides, identifiable)
+    intervals, methods = {}, {}
+    for i, n in enumerate(names):
+        if how[i] is None:
+            intervals[n], methods[n] = None, None
+            continue
+        ends = sorted((float(values[i] + lo[i] * scale[i]),
+                       float(values[i] + hi[i] * scale[i])))
+        intervals[n], methods[n] = tuple(ends), how[i]
+    return intervals, methods
 
 
 __all__ = ["IdentifiabilityReport", "identifiability", "PREFER_FIX", "NAMES"]

@@ -5,7 +5,7 @@ intervals, the parameters to fix)."""
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -63,7 +63,10 @@ class IdentifiabilityReport:
     """Result of `identifiability`; NumPy arrays, entries in the order of ``names``.
 
     ``singular_values`` are relative (σ/σ₁, descending); ``std_errors``/``intervals`` are
-    ``None`` for parameters that are not identifiable; ``combinations`` lists the
+    ``None`` for parameters that are not identifiable; ``interval_methods`` says how each
+    interval was made (`jaxhyst.analysis.intervals.METHODS`: Wald where no bound is
+    active, else the linearised profile with the active bounds — one-sided for a
+    parameter at its bound); intervals stay inside the box; ``combinations`` lists the
     identifiable power-product combinations of the non-identifiable parameters with their
     value, standard error and 95 % interval; ``group_sigma`` the noise level of each
     residual group (declared or estimated; ``sigma`` is the first group's), in its unit;
@@ -91,6 +94,8 @@ class IdentifiabilityReport:
     max_rel_se: float = 0.5
     at_bound: dict | None = None  # {name: ("lower" | "upper", bound value)}
     bounds: tuple | None = None  # (lower, upper) of the free values, SI
+    interval_methods: dict | None = None  # {name: key of intervals.METHODS or None}
+    linearity: dict = field(default_factory=dict)  # {name or combination: (lo, hi) ratios}
 
     @property
     def identifiable(self) -> tuple[str, ...]:
@@ -98,8 +103,8 @@ class IdentifiabilityReport:
 
     @property
     def rank(self) -> int:
-        """Rank of the Jacobian of the parameters not at a bound."""
-        return len(self.names) - len(self.at_bound or {}) - len(self.null_directions)
+        """Rank of the Jacobian of the free parameters."""
+        return len(self.names) - len(self.null_directions)
 
     def relative_std_errors(self) -> dict:
         """Standard error / |value| (or / box width for a parameter at 0); None if not
@@ -109,6 +114,17 @@ class IdentifiabilityReport:
             se = self.std_errors[n]
             out[n] = None if se is None else se / abs(self.scale[i])
         return out
+
+    def nonlinear(self, tolerance: float = 0.5) -> tuple[str, ...]:
+        """Parameters and combinations whose 95 % interval the linear analysis does not
+        describe: along the linearised profile to an end of the interval the cost rises
+        by less than (1 − ``tolerance``) or more than 1/(1 − ``tolerance``) times the 3.84
+        the linear model predicts (`linearity`). Their intervals are then only a guide:
+        a profile likelihood (`jaxhyst.analysis.profile_likelihood`, ``jaxhyst report
+        --profile NAME``) follows the model."""
+        lo, hi = 1.0 - tolerance, 1.0 / (1.0 - tolerance)
+        return tuple(k for k, (a, b) in self.linearity.items()
+                     if not (lo <= a <= hi and lo <= b <= hi))
 
     def poorly_determined(self, max_rel_se: float | None = None) -> tuple[str, ...]:
         """Identifiable parameters whose relative standard error exceeds ``max_rel_se``."""
@@ -174,6 +190,8 @@ class IdentifiabilityReport:
             return None if x is None else float(x)
 
         return {
+            "nonlinear": list(self.nonlinear()),
+            "linearity": {k: list(v) for k, v in self.linearity.items()},
             "names": list(self.names), "rank": self.rank,
             "singular_values": [float(s) for s in self.singular_values],
             "at_bound": {n: {"bound": b, "value": float(v)}
@@ -189,7 +207,8 @@ class IdentifiabilityReport:
                             for k, v in self.group_sigma.items()},
             "parameters": {n: {"value": float(v), "unit": u, "std_error": f(self.std_errors[n]),
                                "interval": None if self.intervals[n] is None
-                               else [float(x) for x in self.intervals[n]]}
+                               else [float(x) for x in self.intervals[n]],
+                               "interval_method": (self.interval_methods or {}).get(n)}
                            for n, v, u in zip(self.names, self.values, self.units, strict=True)},
             "correlation": [[None if not np.isfinite(c) else float(c) for c in row]
                             for row in self.correlation],
@@ -199,7 +218,8 @@ class IdentifiabilityReport:
         sig = ", ".join(f"{k} {v[0]:.3g}{' (est.)' if v[1] else ''}"
                         for k, v in self.group_sigma.items())
         at = self.at_bound or {}
-        held = f" ({len(at)} at a bound, left out)" if at else ""
+        held = (f" ({len(at)} at a bound: intervals from the profile with that constraint)"
+                if at else "")
         lines = [f"Identifiability of {len(self.names)} free parameters{held}: rank "
                  f"{self.rank}, condition number {self.condition_number:.3g}; noise σ: {sig}"]
         lines.append("  singular values / σ1: "
@@ -213,25 +233,32 @@ class IdentifiabilityReport:
         for i, n in enumerate(self.names):
             v, u = self.values[i], self.units[i]
             se = self.std_errors[n]
-            if n in at:
-                lines.append(f"  {n:<9}= {v:.6g} {u}  AT ITS {at[n][0].upper()} BOUND: an "
-                             "active constraint, no interval (widen the bound if a value "
-                             "beyond it is physical)")
-            elif se is None:
+            if se is None or self.intervals.get(n) is None:
                 lines.append(f"  {n:<9}= {v:.6g} {u}  not identifiable from these data")
-            else:
-                lo, hi = self.intervals[n]
-                tag = "  poorly determined" if n in poor else ""
-                if self.bounds is not None and lo < self.bounds[0][i]:
-                    tag += "  (near its lower bound: the interval reaches beyond it)"
-                if self.bounds is not None and hi > self.bounds[1][i]:
-                    tag += "  (near its upper bound: the interval reaches beyond it)"
-                lines.append(f"  {n:<9}= {v:.6g} ± {se:.2g} {u}  (95 %: {lo:.6g} … {hi:.6g})"
-                             f"{tag}")
+                continue
+            lo, hi = self.intervals[n]
+            if n in at:
+                lines.append(f"  {n:<9}= {v:.6g} {u}  AT ITS {at[n][0].upper()} BOUND "
+                             f"(95 %, one-sided: {lo:.6g} … {hi:.6g}; widen the bound if a "
+                             "value beyond it is physical)")
+                continue
+            tag = "  poorly determined" if n in poor else ""
+            if self.bounds is not None and (lo <= self.bounds[0][i] or hi >= self.bounds[1][i]):
+                tag += "  (the box ends the interval)"
+            if (self.interval_methods or {}).get(n) == "bound-aware":
+                tag += "  (profile with the active bounds)"
+            lines.append(f"  {n:<9}= {v:.6g} ± {se:.2g} {u}  (95 %: {lo:.6g} … {hi:.6g})"
+                         f"{tag}")
         for c in self.combinations:
             lo, hi = c["interval"]
             lines.append(f"  {c['text']} = {c['value']:.6g} ± {c['std_error']:.2g}  "
                          f"(95 %: {lo:.6g} … {hi:.6g})  identifiable combination")
+        for k in self.nonlinear():
+            a, b = self.linearity[k]
+            lines.append(f"  NOT LINEAR: along {k}'s interval the cost rises by {a:.2g} and "
+                         f"{b:.2g} times the 3.84 of the linear analysis at its two ends: "
+                         "that interval is only a guide; profile it (jaxhyst report "
+                         f"--profile NAME, jaxhyst.analysis.profile_likelihood)")
         return "\n".join(lines)
 
 

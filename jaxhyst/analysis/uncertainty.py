@@ -27,11 +27,13 @@ import numpy as np
 from .._driver import DONE, KEYBOARD, drive
 from .._interrupt import Interrupted
 from ..identify import outcome_name, solve_traced, start_z
+from ..identify.result import bound_status
 from ..identify.solvers import make_solver
 from ..identify.space import u_from_z
 from ..progress import progress_meter
 from ..sharding import batch_sharding, place
 from .identifiability import whitened_log_jacobian
+from .intervals import bound_aware_intervals, box_in_x, x_side
 from .report import Z95
 
 CHI2_95 = 3.841458820694124  # 95 % quantile of χ² with one degree of freedom
@@ -145,7 +147,7 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
     lowers[:, i_free] = uppers[:, i_free] = grid  # hold the parameter at each grid value
     data = jax.tree.map(lambda a: np.broadcast_to(np.asarray(a), (G, *np.shape(a))),
                         problem.observations)
-    (x, _, results, _, costs), how = _fit_many(problem, data, lowers, uppers, params,
+    (x, _, results, _, costs, _, _), how = _fit_many(problem, data, lowers, uppers, params,
                                                solver, max_steps, batch_size or G,
                                                progress_meter(progress))
     if how != DONE:  # a profile needs every point of its grid
@@ -177,12 +179,13 @@ def _cost_at(problem, z):
 
 def _gn_std_errors(problem, x):
     """Gauss–Newton standard errors (SI) of the free parameters at their values x, from
-    the whitened Jacobian (full-rank problems)."""
+    the whitened Jacobian (full-rank problems), with that Jacobian and the whitened
+    residuals (for `bound_aware_intervals`)."""
     scale = jnp.where(x != 0, x, 1.0)
-    J, _, _ = whitened_log_jacobian(problem, x, scale)
+    J, e, _ = whitened_log_jacobian(problem, x, scale)
     _, s, Vt = jnp.linalg.svd(J, full_matrices=False)
     var = jnp.sum((Vt / s[:, None]) ** 2, axis=0)
-    return jnp.sqrt(var) * jnp.abs(scale)
+    return jnp.sqrt(var) * jnp.abs(scale), J, e
 
 
 @eqx.filter_jit
@@ -196,7 +199,8 @@ def _fit_batch(problem, solver, datas, lowers, uppers, z0, max_steps):
                         problem.space.with_box(lo, hi))
         z, result, steps, cost, _ = solve_traced(p, solver, z0, max_steps)
         x = p.space.free_from_u(u_from_z(z))
-        return x, _gn_std_errors(p, x), result, steps, cost
+        se, J, e = _gn_std_errors(p, x)
+        return x, se, result, steps, cost, J, e
 
     return jax.vmap(one)(datas, lowers, uppers)
 
@@ -255,7 +259,10 @@ def fit_replicates(problem, datasets, start, solver: str = "lm", max_steps: int 
 
     Returns a dict of NumPy arrays: ``values`` and ``std_errors`` (R × n_free, SI, in the
     order of ``problem.space.names``; standard errors assume every free parameter is
-    identifiable), ``cost`` (R,), ``steps`` (R,), ``results`` (names), ``names``, and
+    identifiable), ``intervals`` (R × n_free × 2, SI): the 95 % intervals the
+    identifiability report gives — Wald, or the linearised profile with the bounds a fit
+    ended on (`jaxhyst.analysis.intervals`) — and ``interval_methods`` (R lists),
+    ``cost`` (R,), ``steps`` (R,), ``results`` (names), ``names``, and
     ``interrupted``: True when a stop request ended the fits early (then only the
     replicates fitted so far, in order). Ctrl-C raises `jaxhyst.Interrupted` carrying
     that dict. ``progress``: a progress meter or True (a line per batch)."""
@@ -270,15 +277,43 @@ def fit_replicates(problem, datasets, start, solver: str = "lm", max_steps: int 
     R = len(leaves[0])
     lowers = np.broadcast_to(np.asarray(problem.space.lower), (R, problem.space.n_free))
     uppers = np.broadcast_to(np.asarray(problem.space.upper), (R, problem.space.n_free))
-    (values, se, results, steps, cost), how = _fit_many(
+    (values, se, results, steps, cost, J, e), how = _fit_many(
         problem, datasets, lowers, uppers, start, solver, max_steps, min(batch_size, R),
         progress_meter(progress, every=1), shard)
+    intervals, methods = _replicate_intervals(values, J, e, np.asarray(problem.space.lower),
+                                              np.asarray(problem.space.upper))
     out = {"names": problem.space.names, "values": values, "std_errors": se, "cost": cost,
            "steps": steps, "results": [str(n) for n in np.atleast_1d(outcome_name(results))],
+           "intervals": intervals, "interval_methods": methods,
            "interrupted": how != DONE}
     if how == KEYBOARD:
         raise Interrupted(out)
     return out
+
+
+def _replicate_intervals(values, J, e, lower, upper):
+    """The report's 95 % intervals of each replicate fit (R × n × 2, SI) and their
+    methods."""
+    R, n = values.shape
+    out, methods = np.full((R, n, 2), np.nan), []
+    for r in range(R):
+        x = values[r]
+        scale = np.where(x != 0, x, 1.0)
+        status = bound_status(x, lower, upper)
+        sides = {i: x_side(b, scale[i]) for i, b in status.items()}
+        lo, hi, how = bound_aware_intervals(J[r], e[r], box_in_x(x, scale, lower, upper),
+                                            sides, np.ones(n, bool))
+        ends = np.sort(np.stack([x + lo * scale, x + hi * scale]), axis=0)
+        out[r] = ends.T
+        methods.append(how)
+    return out, methods
+
+
+def interval_coverage(intervals, truth) -> np.ndarray:
+    """Fraction of replicates whose interval (R × n × 2, from `fit_replicates`) contains
+    ``truth`` (n,), per parameter."""
+    intervals, truth = np.asarray(intervals), np.asarray(truth)
+    return np.mean((intervals[..., 0] <= truth) & (truth <= intervals[..., 1]), axis=0)
 
 
 def coverage(values, std_errors, truth, level_z: float = Z95) -> np.ndarray:

@@ -141,6 +141,9 @@ def run(args) -> int:
     from jaxhyst.io import bounds_to_json, read_loops, write_json
 
     check_outputs(args)
+    if args.joint and args.loop is not None:
+        raise CLIError(f"--joint fits every loop of the file together and --loop "
+                       f"{args.loop} picks one; give one of them.")
     known = parameters_arg(args.params) if args.params else None
     given = bounds_arg(args.bounds)
     actuator = actuator_arg(args.actuator)
@@ -277,7 +280,10 @@ def _leave_one_out(args, spec, loops, method) -> list[dict]:
     """Fit every loop but one (as the whole fit was made) and predict the one left out,
     for each loop: [{loop, rms, max_abs, data_scale, rms_fitted}] (the loop's unit)."""
 
+    import warnings
+
     from jaxhyst._interrupt import stop_requested
+    from jaxhyst.identify import ConditionWarning
 
     rows = []
     for i, held in enumerate(loops):
@@ -287,9 +293,17 @@ def _leave_one_out(args, spec, loops, method) -> list[dict]:
         problem = build_problem(spec, rest)
         note("leave-one-out", f"fitting without loop {held.index} ({len(rest)} loops) …")
         result = _fit(args, problem, method, None, quiet=True)
-        predicted, data = predict_loops(spec, problem, result.params, [held])[0]
+        with warnings.catch_warnings(record=True) as caught:  # (an extrapolation is
+            warnings.simplefilter("always", ConditionWarning)  # part of the row instead)
+            predicted, data = predict_loops(spec, problem, result.params, [held])[0]
+        beyond = [" ".join(str(w.message).split()) for w in caught
+                  if issubclass(w.category, ConditionWarning)]
+        for w in caught:
+            if not issubclass(w.category, ConditionWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         rows.append({"loop": held.index, **error_summary(predicted, data),
-                     "rms_fitted": result.rms_error, "outcome": result.result})
+                     "rms_fitted": result.rms_error, "outcome": result.result,
+                     "extrapolated": beyond})
     return rows
 
 
@@ -298,7 +312,10 @@ def _held_out_text(rows) -> str:
     for r in rows:
         lines.append(f"    loop {r['loop']}: rms {r['rms']:.4g} (max {r['max_abs']:.4g}; "
                      f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|), the others' "
-                     f"fit rms {r['rms_fitted']:.4g}")
+                     f"fit rms {r['rms_fitted']:.4g}"
+                     + ("; extrapolated: " + "; ".join(m.removeprefix("a prediction ")
+                                                       for m in r["extrapolated"])
+                        if r.get("extrapolated") else ""))
     return "\n".join(lines)
 
 

@@ -55,14 +55,15 @@ def run(args) -> int:
             for r in study["runs"]:
                 plot_history(r["history"], problem.space.names, problem.space.lower,
                              problem.space.upper, out / f"{r['method']}_s{r['seed']}.png",
-                             title=f"{r['method']}, seed {r['seed']}")
+                             title=f"{r['method']}, seed {r['seed']}"
+                             + (" (PARTIAL: interrupted)" if study["partial"] else ""))
         write_json(out / "table1.json", study)
         atomic_write_text(out / "table1.md", study["markdown"] + "\n")
     summary = {k: v for k, v in study.items() if k != "runs"}
     summary["runs"] = [{k: v for k, v in r.items() if k != "history"} for r in study["runs"]]
     text = study["markdown"] + (f"\n\nwrote {out}/table1.md, table1.json" if out else "")
     print_result(args, summary, text)
-    return 0
+    return 130 if study["partial"] else 0
 
 
 def _reproduce_experiment(args, out) -> int:
@@ -95,7 +96,8 @@ def _reproduce_experiment(args, out) -> int:
             from .studies import TABLE3_FREQUENCIES
 
             plot_table3_loops(study["loops"], out / "fig7_loops.png",
-                              title="Actuator2, Hb = 16 kA/m, H_AC = 8 kA/m (Table 3 values)")
+                              title="Actuator2, Hb = 16 kA/m, H_AC = 8 kA/m (Table 3 values)"
+                              + (" (PARTIAL: interrupted)" if study["partial"] else ""))
             p = jh.TABLE3[1000]
             dense = np.logspace(0, 4, 300)
             fm = np.array(TABLE3_FREQUENCIES, dtype=float)
@@ -114,4 +116,4 @@ def _reproduce_experiment(args, out) -> int:
             f"(✗: the truth outside the 95 % interval)\n\n" + study["markdown"]
             + (f"\n\nwrote {out}/: {wrote}" if out else ""))
     print_result(args, summary, text)
-    return 0
+    return 130 if study["partial"] else 0

@@ -6,13 +6,13 @@ from jaxhyst.names import DEFAULT_SUBSTEPS
 
 from .options import FINITE, POSITIVE, POSITIVE_INT, UNITS_HELP, VARIANTS
 from .spec import (
+    CLIError,
     actuator_arg,
     check_outputs,
     loop_field,
     parameters_arg,
     print_result,
     variant_from_name,
-    warn,
 )
 
 
@@ -30,17 +30,17 @@ def add_parser(sub) -> None:
                         "(a result JSON also works)")
     parser.add_argument("--actuator", default="actuator1",
                         help="actuator1, actuator2 or a JSON file {Ar, lr, n, Hb}")
-    parser.add_argument("--frequency", type=POSITIVE, default=100.0, help="drive frequency, Hz")
-    parser.add_argument("--amplitude", type=FINITE, default=0.77, help="current amplitude, A")
-    parser.add_argument("--offset", type=FINITE, default=1.53, help="current offset (bias), A")
+    parser.add_argument("--frequency", type=POSITIVE, help="drive frequency, Hz (default 100)")
+    parser.add_argument("--amplitude", type=FINITE, help="current amplitude, A (default 0.77)")
+    parser.add_argument("--offset", type=FINITE, help="current offset (bias), A (default 1.53)")
     parser.add_argument("--field-amplitude", type=FINITE, help="field amplitude, A/m (instead "
                         "of a current)")
-    parser.add_argument("--field-offset", type=FINITE, default=0.0, help="field offset, A/m")
+    parser.add_argument("--field-offset", type=FINITE, help="field offset, A/m (default 0)")
     parser.add_argument("--drive", help="CSV/TSV with t and H (or I) columns")
     parser.add_argument("--columns", help="column names for a file without a header")
-    parser.add_argument("--periods", type=POSITIVE, default=1.0, help="observed periods")
-    parser.add_argument("--samples-per-period", type=POSITIVE_INT, default=200,
-                        help="samples per drive period")
+    parser.add_argument("--periods", type=POSITIVE, help="observed periods (default 1)")
+    parser.add_argument("--samples-per-period", type=POSITIVE_INT,
+                        help="samples per drive period (default 200)")
     parser.add_argument("--substeps", type=POSITIVE_INT, default=DEFAULT_SUBSTEPS,
                         help="RK4 substeps per sample")
     parser.add_argument("--variant", choices=VARIANTS, default="energy",
@@ -49,6 +49,41 @@ def add_parser(sub) -> None:
     parser.add_argument("--png", help="write a figure here (needs matplotlib)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary")
     parser.set_defaults(func=run)
+
+
+#: Defaults of the sinusoidal drive's options (None in the parser, so that an option
+#: given where it does not apply is refused instead of ignored).
+SINE_DEFAULTS = {"frequency": 100.0, "amplitude": 0.77, "offset": 1.53, "field_offset": 0.0,
+                 "periods": 1.0, "samples_per_period": 200}
+#: The largest drive the command simulates at once (samples; ~0.5 GB of signals).
+MAX_SAMPLES = 5_000_000
+
+
+def _check_drive_options(args) -> None:
+    """Options that do not go together are refused, not resolved silently; defaults are
+    filled in; the drive's size is checked before anything is allocated."""
+    sine = [o for o in ("frequency", "amplitude", "offset", "field_amplitude",
+                        "field_offset", "periods", "samples_per_period")
+            if getattr(args, o) is not None]
+    flag = lambda o: "--" + o.replace("_", "-")  # noqa: E731
+    if args.drive and sine:
+        raise CLIError(f"--drive reads the drive from {args.drive}; "
+                       f"{', '.join(flag(o) for o in sine)} build a sinusoid instead: give one.")
+    if args.field_amplitude is not None:
+        current = [o for o in ("amplitude", "offset") if getattr(args, o) is not None]
+        if current:
+            raise CLIError(f"--field-amplitude drives with a field; {flag(current[0])} is of "
+                           "a current drive: give one kind.")
+    elif args.field_offset is not None:
+        raise CLIError("--field-offset goes with --field-amplitude (a field drive).")
+    for o, v in SINE_DEFAULTS.items():
+        if getattr(args, o) is None:
+            setattr(args, o, v)
+    samples = (args.periods + 1.25) * args.samples_per_period
+    if not args.drive and samples > MAX_SAMPLES:
+        raise CLIError(f"--periods {args.periods:g} × --samples-per-period "
+                       f"{args.samples_per_period} is {samples:.3g} samples (about "
+                       f"{samples * 100 / 1e9:.2g} GB of signals); at most {MAX_SAMPLES:.0e}.")
 
 
 def _drive_from_args(args, actuator):
@@ -75,14 +110,10 @@ def run(args) -> int:
     from jaxhyst.io import write_simulation_csv
 
     check_outputs(args)
+    _check_drive_options(args)
     params = parameters_arg(args.params or args.preset)
     actuator = actuator_arg(args.actuator)
     drive, what = _drive_from_args(args, actuator)
-    from jaxhyst.identify.measured import coarse_sampling
-
-    coarse = coarse_sampling(drive.observed(drive.H), args.substeps, fix="--substeps {}")
-    if coarse is not None:
-        warn(args, coarse)
     sim = jh.simulate(params, actuator, drive, variant=variant_from_name(args.variant),
                       substeps=args.substeps)
     y = sim.observed("y")

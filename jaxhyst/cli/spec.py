@@ -155,6 +155,8 @@ def fixed_arg(items, params) -> dict:
             name = name.strip()
             if name not in NAMES:
                 raise CLIError(f"--fix {part!r}: unknown parameter; names are {list(NAMES)}.")
+            if name in out:
+                raise CLIError(f"--fix names {name} twice; give each parameter once.")
             if value:
                 try:
                     out[name] = float(value)

@@ -3,6 +3,7 @@
 immutable results. The identifiability report is attached one level up (`jaxhyst.solve`,
 `jaxhyst.multistart`, `jaxhyst.run_hybrid`)."""
 
+from ..model.accuracy import SamplingWarning
 from ._objective import jacobian_linearized
 from ._stepped import solve_traced
 from .checkpoint import CheckpointError
@@ -23,7 +24,7 @@ from .outputs import OUTPUTS, AbstractOutput, output_kind
 from .problem import AbstractProblem, GaussianPrior, ResidualGroup, ResidualProblem
 from .result import OUTCOME_NAMES, RESULTS, IdentificationResult, outcome_name
 from .run import hybrid_method, run_hybrid
-from .signal import Problem, SamplingWarning, synthetic_problem
+from .signal import Problem, synthetic_problem
 from .solvers import (
     SOLVERS,
     MultiplicativeDamping,

@@ -20,6 +20,7 @@ Outcomes are `RESULTS` values throughout.
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import equinox as eqx
@@ -28,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from ..model.simulate import plain_vmap
 from ._objective import objective
 from .problem import AbstractProblem
 from .result import RESULTS
@@ -153,7 +155,11 @@ class SteppedSolve:
                  with_cost: bool = False):
         self.problem, self.solver, self.max_steps = problem, solver, np.int64(max_steps)
         self.with_cost = bool(with_cost)
-        self.state, self.static = _init_batch(problem, solver, np.asarray(z0s))
+        # a minimiser may vmap the function itself (Nelder–Mead): trace it plainly
+        self.tracing = plain_vmap if isinstance(solver, optx.AbstractMinimiser) else \
+            contextlib.nullcontext
+        with self.tracing():
+            self.state, self.static = _init_batch(problem, solver, np.asarray(z0s))
         self.chunk, self.costs, self.started = 1, None, time.perf_counter()
 
     def done(self, carry) -> bool:
@@ -162,8 +168,10 @@ class SteppedSolve:
 
     def advance(self, carry):
         t0 = time.perf_counter()
-        carry, costs = _advance_batch(self.problem, self.solver, self.static, carry,
-                                      np.int64(self.chunk), self.max_steps, self.with_cost)
+        with self.tracing():
+            carry, costs = _advance_batch(self.problem, self.solver, self.static, carry,
+                                          np.int64(self.chunk), self.max_steps,
+                                          self.with_cost)
         jax.block_until_ready(carry)
         if time.perf_counter() - t0 < 0.25:
             self.chunk = min(self.chunk * 2, 64)
@@ -182,8 +190,9 @@ class SteppedSolve:
         """(z, results, steps, cost, final step size, group residuals) of every solve, as
         host values (``results`` a batch of `RESULTS`)."""
         # on the host at once (indexing device arrays compiles a small program per shape)
-        *out, known = jax.device_get(_finish_batch(self.problem, self.solver, self.static,
-                                                   carry))
+        with self.tracing():
+            *out, known = jax.device_get(_finish_batch(self.problem, self.solver,
+                                                       self.static, carry))
         missing = np.flatnonzero(~np.asarray(known))  # solves that accepted no step
         if missing.size:
             out[3], out[5] = np.array(out[3]), [np.array(r) for r in out[5]]  # (writable)

@@ -14,7 +14,7 @@ from .._driver import KEYBOARD, drive
 from .._interrupt import Interrupted
 from ..progress import NoProgressMeter, progress_meter
 from ._stepped import SteppedSolve
-from .problem import AbstractProblem
+from .problem import AbstractProblem, check_problem
 from .result import RESULTS, IdentificationResult, member, outcome_name
 from .solvers import make_solver, solver_name
 from .space import z_from_u
@@ -37,9 +37,16 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int, meter,
     if how != "done":
         stopped = RESULTS.where(jnp.asarray(True), RESULTS.interrupted, out[1])
         out = (out[0], jax.device_get(stopped), *out[2:])
-    steps = int(np.max(np.asarray(out[2])))
-    meter.close(meter_state, f"{'interrupted at' if how != 'done' else 'done after'} "
-                f"{steps} steps, best cost {np.nanmin(np.asarray(out[3])):.4e}")
+    steps = np.asarray(out[2])
+    costs = np.asarray(out[3])
+    best = int(np.nanargmin(np.where(np.isfinite(costs), costs, np.nan))) \
+        if np.any(np.isfinite(costs)) else 0
+    ended = "interrupted" if how != "done" else "done"
+    text = (f"{ended} after {int(steps[best])} steps, cost {costs[best]:.4e}"
+            if steps.size == 1 else
+            f"{ended}: the best start after {int(steps[best])} steps, cost "
+            f"{costs[best]:.4e} (the longest start {int(steps.max())} steps)")
+    meter.close(meter_state, text)
     return out, how
 
 
@@ -118,6 +125,7 @@ def solve(problem: AbstractProblem, start, solver="lm", max_steps: int = 200,
     ``progress``: a progress meter (`jaxhyst.progress`), or True for a line every 2 s on
     stderr. A stop request returns the point reached (outcome ``interrupted``); Ctrl-C
     raises `jaxhyst.Interrupted` carrying that result."""
+    check_problem(problem)
     z0 = start_z(problem, start)
     if z0.ndim != 1:
         raise ValueError("solve takes one start; use multistart for a batch of starts.")
@@ -147,6 +155,7 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
             f"multistart takes the starts themselves, not their number: e.g. {starts} "
             f"starts spread over the box as box coordinates, jax.random.uniform("
             f"jax.random.PRNGKey(0), ({starts}, {n})), or a batch of parameters.")
+    check_problem(problem)
     z0s = start_z(problem, starts)
     if z0s.ndim != 2:
         raise ValueError("multistart needs a batch of starts, shape (K, n_free).")

@@ -192,11 +192,17 @@ def default_loop_bounds(features: LoopFeatures | list[LoopFeatures]) -> Bounds:
     hc_lo = min(hcs) if hcs else 0.1 * Hmax
     hc_hi = max(hcs) if hcs else 0.1 * Hmax
     h_small = min(hc_lo, 0.1 * Hmax)
-    box = {
-        "Ms": (Mmax, 10.0 * Mmax),
-        "a": (h_small / 100.0, 10.0 * Hmax),
-        "k": (hc_lo / 10.0, 30.0 * hc_hi),
-        "alpha": (-Hmax / Mmax, Hmax / Mmax),
+    if Mmax > 1e7:
+        raise ValueError(f"The loop's magnetization reaches {Mmax:.3g} A/m, beyond any "
+                         "material (Ms <= 1e7 A/m; Fe–Co's is 1.95e6): check the unit and "
+                         "the column of B or M, and look for a spike sample.")
+    clip = lambda lo, hi, a, b: (min(max(lo, a), b), min(max(hi, a), b))  # noqa: E731
+    alpha = min(Hmax / Mmax, 10.0)
+    box = {  # (each inside the physical range of `jaxhyst.params.PHYSICAL_RULES`)
+        "Ms": (Mmax, min(10.0 * Mmax, 1e7)),
+        "a": clip(h_small / 100.0, 10.0 * Hmax, 1e-6, 1e9),
+        "k": clip(hc_lo / 10.0, 30.0 * hc_hi, 1e-6, 1e9),
+        "alpha": (-alpha, alpha),
         "c": (0.0, 1.0),
         **_STRUCTURAL_BOX,
     }
@@ -213,31 +219,6 @@ def merge_bounds(base: Bounds, changes: dict) -> Bounds:
     for n, (l_, h_) in changes.items():
         lo[n], hi[n] = float(l_), float(h_)
     return Bounds(Parameters.from_dict(lo), Parameters.from_dict(hi))
-
-
-def max_field_step(H) -> float:
-    """Largest field step between consecutive samples relative to the record's range
-    (the 95th percentile of |ΔH|, so that a few noise jumps do not count)."""
-    H = np.asarray(H, float)
-    span = float(np.ptp(H))
-    if not span > 0 or H.size < 2:
-        return 0.0
-    return float(np.percentile(np.abs(np.diff(H)), 95)) / span
-
-
-#: Largest field step per RK4 substep, as a fraction of the field range, for the
-#: documented accuracy (≤ 1e-5 relative in M, docs/loops.md "Sampling"): measured on
-#: sinusoidal B–H loops, the error of M is ~1e-5 at a step of 1 % of the range per
-#: substep for a sharp ferrite-like loop (a ≈ 0.07 of the range) and ~1e-6 for the
-#: Table 1 material, and grows with the 4th power of the step beyond it.
-MAX_STEP_PER_SUBSTEP = 0.01
-
-
-def substeps_needed(H, substeps: int) -> int | None:
-    """The substeps that keep the field step per substep ≤ `MAX_STEP_PER_SUBSTEP` of the
-    range, if ``substeps`` is fewer (else ``None``)."""
-    need = int(np.ceil(max_field_step(H) / MAX_STEP_PER_SUBSTEP))
-    return need if need > substeps else None
 
 
 def loop_bounds(Hs, datas, output: str, bounds=None) -> Bounds:
@@ -263,15 +244,3 @@ def loop_bounds(Hs, datas, output: str, bounds=None) -> Bounds:
     feats = [loop_features(H, magnetization_of(d, H, output))
              for H, d in zip(Hs, datas, strict=True)]
     return merge_bounds(default_loop_bounds(feats), dict(bounds or {}))
-
-
-def coarse_sampling(H, substeps: int, fix: str = "substeps={}") -> str | None:
-    """The warning for a record too coarse for ``substeps`` (`substeps_needed`), naming the
-    substeps needed in the form ``fix`` (``"--substeps {}"`` on the command line); else
-    ``None``."""
-    need = substeps_needed(H, substeps)
-    if need is None:
-        return None
-    return (f"the field moves up to {100 * max_field_step(H):.2g} % of its range per sample: "
-            f"{int(substeps)} RK4 substeps lose the documented accuracy (≤ 1e-5); use "
-            f"{fix.format(need)} or more.")

@@ -37,6 +37,15 @@ from .space import ParameterSpace, u_from_z
 _TRACED = object()
 
 
+def _host_float(x):
+    """A static number as a Python float (a NumPy or JAX scalar kept as structure would
+    be an array set as static); anything else is left for the checks to name."""
+    try:
+        return float(x)
+    except (TypeError, ValueError, jax.errors.ConcretizationTypeError):
+        return x
+
+
 def _concrete(x):
     """``x`` as a float (None stays None), or `_TRACED` when it has no value yet."""
     if x is None:
@@ -66,7 +75,7 @@ class ResidualGroup(eqx.Module):
     size: int = eqx.field(static=True)
     unit: str = eqx.field(static=True, default="")
     sigma: float | jax.Array | None = None  # (data, not structure: a new data set's σ
-    weight: float = eqx.field(static=True, default=1.0)
+    weight: float = eqx.field(static=True, default=1.0, converter=_host_float)
     scale: float | jax.Array = 1.0  # and scale do not recompile a fit)
     data_size: float | jax.Array | None = None
 
@@ -98,13 +107,33 @@ class GaussianPrior(eqx.Module):
     residual (θ − mean)/sd to the problem."""
 
     name: str = eqx.field(static=True)
-    mean: float = eqx.field(static=True)
-    sd: float = eqx.field(static=True)
+    mean: float = eqx.field(static=True, converter=_host_float)
+    sd: float = eqx.field(static=True, converter=_host_float)
 
     def __check_init__(self):
-        if not (np.isfinite(self.mean) and np.isfinite(self.sd) and self.sd > 0):
+        if not all(isinstance(v, float) for v in (self.mean, self.sd)) or not (
+                np.isfinite(self.mean) and np.isfinite(self.sd) and self.sd > 0):
             raise ValueError(f"Prior on {self.name}: mean must be finite and sd > 0; got "
                              f"mean={self.mean!r}, sd={self.sd!r}.")
+
+
+#: What the solvers, the GA and the analyses use of a problem (`AbstractProblem`).
+PROTOCOL = ("space", "priors", "groups", "group_residuals", "residuals", "residuals_u",
+            "cost", "observations", "with_data")
+
+
+def check_problem(problem, what: str = "problem") -> None:
+    """A one-line ``TypeError`` before any work if ``problem`` lacks part of the protocol
+    (a problem written by hand without subclassing `AbstractProblem`)."""
+    if isinstance(problem, AbstractProblem):
+        return
+    missing = [name for name in PROTOCOL if not hasattr(problem, name)]
+    if missing:
+        raise TypeError(f"{what} is a {type(problem).__name__}, which lacks {missing} of the "
+                        "problem protocol: subclass jaxhyst.identify.AbstractProblem (it "
+                        "defines everything but space, priors, output, groups, "
+                        "group_residuals, observations and with_data), or build a "
+                        "jaxhyst.ResidualProblem from your residual function.")
 
 
 class AbstractProblem(eqx.Module):

@@ -17,6 +17,7 @@ import jax
 import numpy as np
 import optimistix as optx
 
+from ..model.accuracy import sampling_message
 from ..params import NAMES, STRUCTURAL, UNITS, Parameters, at_physical_limit
 from .outputs import MAGNETIC_OUTPUTS
 
@@ -84,6 +85,18 @@ OUTLIER_RATIO = 5.0
 OUTLIER_FLOOR = 0.05
 
 
+#: A cost (the normalised Σr², ~ (rms/size)²) below which a fit is exact to round-off:
+#: moving it further is round-off, not a better optimum.
+ROUND_OFF_COST = 1e-24
+
+
+def stopped_short(cost_before: float, cost_after: float) -> bool:
+    """Whether a convergence check that moved the cost from ``cost_before`` to
+    ``cost_after`` found a better optimum: a decrease of more than 1e-6 of the cost and
+    more than round-off (`ROUND_OFF_COST`)."""
+    return cost_before - cost_after > max(1e-6 * cost_before, ROUND_OFF_COST)
+
+
 def bound_status(values, lower, upper, tol: float = BOUND_TOL) -> dict:
     """``{index: "lower" | "upper"}`` of the values within ``tol`` of their box width
     from a bound (boxes of zero width excluded)."""
@@ -123,6 +136,9 @@ class IdentificationResult:
       etc.), or None; ``report_error`` says why it is missing.
     - ``at_bound``: ``{name: ("lower" | "upper", bound)}`` of the free values that ended
       within 1e-6 of the box width from a bound (a constrained optimum);
+    - ``sampling_error``: the model's error at the data's sampling with its RK4
+      ``substeps``, relative to the output's size, at ``params`` (estimated where the
+      drive is coarse, else None);
       ``far_from_data`` and ``warnings`` (properties) say what else needs attention.
     """
 
@@ -143,6 +159,8 @@ class IdentificationResult:
     report: object = None
     report_error: str | None = None
     at_bound: MappingProxyType = field(default_factory=lambda: _frozen({}))
+    sampling_error: float | None = None
+    substeps: int | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "outcome", as_result(self.outcome))
@@ -186,6 +204,10 @@ class IdentificationResult:
                        "steps, or start again from this result")
         elif self.result in ("nonfinite", "failed"):
             out.append(f"the fit failed ({self.result}): the cost is not a valid optimum")
+        coarse = None if self.sampling_error is None else sampling_message(
+            self.sampling_error, self.substeps or 0, "the model's output")
+        if coarse is not None:
+            out.append(coarse.rstrip("."))
         for k in self.far_from_data:
             g = self.groups[k]
             out.append(f"{k}: rms error {g['rms']:.3g} {g['unit']} is "
@@ -265,7 +287,7 @@ class IdentificationResult:
                 f"({self.output})" if self.rms_error is not None else ""),
         ]
         check = self.extra.get("convergence_check")
-        if check and check["cost_after"] < check["cost_before"] * (1 - 1e-6):
+        if check and stopped_short(check["cost_before"], check["cost_after"]):
             lines.append(f"  the search stopped short of the optimum: the convergence check "
                          f"lowered the cost from {check['cost_before']:.4e} to "
                          f"{check['cost_after']:.4e} in {check['steps']} LM steps")

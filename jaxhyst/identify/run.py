@@ -13,7 +13,7 @@ from ..progress import progress_meter
 from .checkpoint import CheckpointError, fingerprint, load_checkpoint, save_checkpoint
 from .hybrid import HYBRIDS, GAState, HybridGA, best_z
 from .local import _finished
-from .problem import AbstractProblem
+from .problem import AbstractProblem, check_problem
 from .result import RESULTS, IdentificationResult, outcome_name
 from .summary import summarize
 
@@ -125,6 +125,7 @@ def run_hybrid(problem: AbstractProblem, method: str | HybridGA = "GATR1", seed:
     """
     method = hybrid_method(method, settings)
     meter = progress_meter(progress, every=10)
+    check_problem(problem)
     run = _History(problem, method, seed, checkpoint, resume)
     meter_state = meter.init(method.name, method.generations)
     state, how, meter_state = drive(

@@ -3,7 +3,7 @@ for it (`synthetic_problem`)."""
 
 from __future__ import annotations
 
-import warnings
+import copy
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -13,6 +13,7 @@ import numpy as np
 
 from ..actuator import Actuator
 from ..drive import Drive
+from ..model.accuracy import may_be_coarse, richardson_error
 from ..model.jiles_atherton import AbstractJAVariant
 from ..model.losses import split_losses
 from ..model.simulate import (
@@ -24,14 +25,10 @@ from ..model.simulate import (
 )
 from ..params import Bounds, Parameters, check_parameters
 from ..saved import Model
-from .measured import coarse_sampling, holds_loop
+from .measured import holds_loop
 from .outputs import AbstractOutput, output_kind
 from .problem import AbstractProblem, GaussianPrior, ResidualGroup
 from .space import ParameterSpace
-
-
-class SamplingWarning(UserWarning):
-    """The record is sampled too coarsely for the RK4 substeps asked for."""
 
 
 def _caller_level() -> int:
@@ -65,8 +62,8 @@ class Problem(AbstractProblem):
       rule of `jaxhyst.identify.measured`: noise reversals below 5 % of the range do not
       count), which cannot determine a hysteresis loop.
 
-    Warns (`SamplingWarning`) when the field moves more than 1 % of its range per RK4
-    substep, where the documented accuracy no longer holds.
+    Whether the sampling is fine enough is judged after a fit, at the fitted parameters
+    (`sampling_error`: `jaxhyst.solve` & co. put it in the result and warn there).
     """
 
     data: jax.Array
@@ -109,9 +106,6 @@ class Problem(AbstractProblem):
                 "its range. Observe a whole period or loop (or pass "
                 "require_full_period=False)."
             )
-        coarse = coarse_sampling(H_obs, int(substeps))
-        if coarse is not None:
-            warnings.warn(coarse, SamplingWarning, stacklevel=_caller_level())
         big = np.flatnonzero(np.abs(data) > kind.largest)
         if big.size:
             i = int(big[0])
@@ -122,6 +116,9 @@ class Problem(AbstractProblem):
         scale = float(np.max(np.abs(data)))
         if scale == 0.0:
             raise ValueError("data are identically zero; nothing to fit.")
+        if float(np.ptp(data)) == 0.0:
+            raise ValueError(f"data are constant ({data[0]:g} {kind.unit} at every sample): "
+                             "a constant record holds no response to the drive to fit.")
         self.data = jnp.asarray(data)
         self.drive = drive
         self.actuator = actuator
@@ -145,6 +142,7 @@ class Problem(AbstractProblem):
     def predict(self, params: Parameters) -> jax.Array:
         """The model's observed output at ``params`` (unit of ``output``)."""
         return self.drive.observed(self.kind.of(self.simulate(params)))
+
 
     @property
     def kind(self) -> AbstractOutput:
@@ -208,3 +206,27 @@ def synthetic_problem(params: Parameters, drive: Drive, actuator: Actuator, boun
             raise ValueError("noise > 0 needs a jax.random key for reproducibility.")
         data = data + noise * jax.random.normal(key, data.shape)
     return Problem(data, drive, actuator, space, output=output, **kwargs)
+
+
+def sampling_error(problem, params) -> float | None:
+    """The model's error at ``problem``'s sampling and substeps, relative to the size of
+    its output, at ``params`` (`jaxhyst.model.accuracy`: the same prediction at twice the
+    substeps); None where the drive is fine enough that it cannot matter (its field — or
+    flux density — moves at most 1 % of its range per substep), or for a problem without
+    a drive and substeps of this kind."""
+    drive, substeps = getattr(problem, "drive", None), getattr(problem, "substeps", None)
+    signal = getattr(drive, "H", getattr(drive, "B", None))
+    if signal is None or not isinstance(substeps, int):
+        return None
+    rows = np.atleast_2d(np.asarray(signal))[:, drive.run_in:]
+    if not any(may_be_coarse(row, substeps) for row in rows):
+        return None
+    finer = copy.copy(problem)
+    object.__setattr__(finer, "substeps", 2 * substeps)
+    coarse, fine = _predictions(problem, finer, params)
+    return richardson_error(coarse, fine)
+
+
+@eqx.filter_jit
+def _predictions(problem, finer, params):
+    return problem.predict(params), finer.predict(params)

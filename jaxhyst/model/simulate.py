@@ -17,6 +17,9 @@ are 4th order, so the error falls ~16× per doubling of ``substeps``.
 
 from __future__ import annotations
 
+import contextlib
+import warnings
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -30,6 +33,7 @@ from ..names import DEFAULT_SUBSTEPS
 from ..params import Parameters, check_parameters, is_concrete
 from ..sharding import vmap_blocked
 from ._batching import blocked_under_vmap
+from .accuracy import SamplingWarning, may_be_coarse, richardson_error, sampling_message
 from .dynamic import dynamic_path
 from .jiles_atherton import PAPER_VARIANT, AbstractJAVariant, anhysteretic
 from .losses import Losses
@@ -117,7 +121,7 @@ def _simulate(params, actuator, drive, variant, substeps, losses=None) -> Simula
                                             variant=variant, substeps=S)
     args = (variant, params, actuator.Ar, drive.t, H_hyst, M_sub, k_sub)
     periodic_from = drive.run_in if drive.periodic else None
-    if under_vmap():  # its batch rule in blocks (`_batching.blocked_under_vmap`)
+    if under_vmap() and not _PLAIN_VMAP:  # its batch rule in blocks
         M, Man, Mirr, lam, y, v = blocked_under_vmap(
             _after_the_loop, uniform=drive.uniform, S=S, periodic_from=periodic_from)(*args)
     else:  # (the same without the wrappers: less to trace for grad)
@@ -127,6 +131,24 @@ def _simulate(params, actuator, drive, variant, substeps, losses=None) -> Simula
 
 
 _simulate_jit = eqx.filter_jit(_simulate)
+
+#: Set while `plain_vmap` is active: a vmap traces the work after the time loop plainly.
+_PLAIN_VMAP: list = []
+
+
+@contextlib.contextmanager
+def plain_vmap():
+    """Trace simulations under ``jax.vmap`` without the blocked batch rule of the work
+    after the time loop (`_batching.blocked_under_vmap`), for the duration. JAX's
+    ``custom_vmap`` refuses to be batched again when its function closes over values an
+    outer ``vmap`` batches — a minimiser that vmaps the function itself (Nelder–Mead's
+    simplex) inside a vmapped batch of starts does that — so such solves are traced with
+    this on (`jaxhyst.identify._stepped`). Values are the same either way."""
+    _PLAIN_VMAP.append(True)
+    try:
+        yield
+    finally:
+        _PLAIN_VMAP.pop()
 
 
 def _after_the_loop(variant, p, Ar, t, H, M_sub, k_sub, uniform: bool, S: int,
@@ -233,6 +255,11 @@ def simulate(
     - ``losses``: `jaxhyst.Losses` (eddy-current and excess loss coefficients) for the
       rate-dependent model (`jaxhyst.model.dynamic`); None (default): rate independent.
 
+    Warns (`jaxhyst.model.accuracy.SamplingWarning`) where the error at this sampling,
+    estimated from the same simulation at twice the substeps, exceeds the documented
+    1e-5 of max|y| (or of max|M|): only drives whose field moves more than 1 % of its
+    range per substep are checked (one more simulation).
+
     **Returns:** a `Simulation` with every signal, shape (T,); raises
     ``FloatingPointError`` (naming the first bad sample) if the simulation diverged
     (`simulate_unchecked` returns the NaN instead). Jit-compiled; to batch
@@ -253,6 +280,13 @@ def simulate(
             f"{float(drive.t[i]):g} s, H = {float(drive.H[i]):g} A/m) on; the parameters or "
             "the drive lie outside the model's range. (simulate_unchecked returns the NaN "
             "instead of raising.)")
+    if may_be_coarse(np.asarray(drive.observed(drive.H)), substeps):
+        fine = _simulate_jit(params, actuator, drive, variant, 2 * substeps, losses)
+        error = max(richardson_error(sim.observed(name), fine.observed(name))
+                    for name in ("M", "y"))
+        message = sampling_message(error, substeps, "the simulation (M, y)")
+        if message is not None:
+            warnings.warn(message, SamplingWarning, stacklevel=2)
     return sim
 
 

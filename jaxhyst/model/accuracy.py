@@ -1,0 +1,76 @@
+"""How accurate a simulation is at its sampling: an estimate of the error, not a rule.
+
+The time loop integrates the Jiles–Atherton slope by RK4 with ``substeps`` pieces per
+sample interval, so its error falls 16× per doubling of the substeps. The same
+simulation at twice the substeps therefore gives the error of the first (Richardson):
+error ≈ (16/15)·|s_S − s_2S|. That costs one more simulation, so it is only run where
+the field moves far per substep (more than `SCREEN_STEP` of its range, where the error
+*can* exceed the documented accuracy); finer drives are accurate whatever the material.
+
+`SamplingWarning` is raised where the estimate exceeds `ACCURACY` (the documented
+1e-5 of the signal's size), with the substeps that bring it below.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: The documented accuracy: error of a signal relative to its size.
+ACCURACY = 1e-5
+#: Field step per RK4 substep (fraction of the field's range) below which the error is
+#: far below `ACCURACY` for any material (measured: ~1e-5 at 1 % for a sharp ferrite
+#: loop, ~1e-6 for the Table 1 material): no estimate is run there.
+SCREEN_STEP = 0.01
+
+
+class SamplingWarning(UserWarning):
+    """The record is sampled too coarsely for the RK4 substeps asked for: the estimated
+    error exceeds the documented accuracy."""
+
+
+def max_field_step(H) -> float:
+    """Largest field step between consecutive samples relative to the record's range
+    (the 95th percentile of |ΔH|, so that a few noise jumps do not count)."""
+    H = np.asarray(H, float)
+    span = float(np.ptp(H)) if H.size else 0.0
+    if not span > 0 or H.size < 2:
+        return 0.0
+    return float(np.percentile(np.abs(np.diff(H)), 95)) / span
+
+
+def may_be_coarse(H, substeps: int) -> bool:
+    """Whether the field ``H`` (A/m) moves more than `SCREEN_STEP` of its range per
+    substep somewhere: only then can the error exceed `ACCURACY` (and is estimated)."""
+    return max_field_step(H) / max(int(substeps), 1) > SCREEN_STEP
+
+
+def richardson_error(coarse, fine, size: float | None = None) -> float:
+    """(16/15)·max|coarse − fine| relative to ``size`` (default max|fine|): the error of
+    the simulation at S substeps from the same at 2S."""
+    coarse, fine = np.asarray(coarse, float), np.asarray(fine, float)
+    size = float(np.max(np.abs(fine))) if size is None else float(size)
+    if not size > 0:
+        return 0.0
+    return 16.0 / 15.0 * float(np.max(np.abs(coarse - fine))) / size
+
+
+def substeps_for(error: float, substeps: int) -> int:
+    """The substeps that bring an estimated ``error`` at ``substeps`` below `ACCURACY`
+    (RK4: the error falls with the 4th power of the substep)."""
+    if not error > ACCURACY:
+        return int(substeps)
+    return int(math.ceil(substeps * (error / ACCURACY) ** 0.25 * 1.05))
+
+
+def sampling_message(error: float, substeps: int, what: str = "the signal") -> str | None:
+    """The warning text for an estimated relative ``error`` at ``substeps``, or None if
+    it is within `ACCURACY`."""
+    if not error > ACCURACY:
+        return None
+    need = substeps_for(error, substeps)
+    return (f"the sampling is too coarse for {int(substeps)} RK4 substeps: the error of "
+            f"{what} is estimated at {error:.2g} of its size (documented: <= {ACCURACY:g}); "
+            f"use {need} substeps or more (substeps={need}, --substeps {need}), or sample "
+            "the drive more finely.")
