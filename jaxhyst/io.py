@@ -14,6 +14,7 @@ leaves a half-written file; a device, FIFO or ``/dev/stdout`` is written in plac
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 import re
@@ -127,6 +128,22 @@ def _lookup(name: str) -> str | None:
     return None
 
 
+def _fast_table(body, delim, n_columns: int) -> np.ndarray | None:
+    """The rows of ``body`` as a float array by NumPy's C parser when every cell is a
+    finite number (a 2-million-row file in about a second); None when any row is not —
+    the row-by-row reader then names the row and the column."""
+    if delim is None or delim == '"':
+        return None
+    try:
+        table = np.loadtxt(io.StringIO("\n".join(ln for _, ln in body)), delimiter=delim,
+                           dtype=np.float64, ndmin=2, comments=None)
+    except (ValueError, IndexError):
+        return None
+    if table.shape != (len(body), n_columns) or not np.all(np.isfinite(table)):
+        return None
+    return table
+
+
 def _sniff_delimiter(line: str) -> str | None:
     for d in ("\t", ";", ","):
         if d in line:
@@ -203,8 +220,10 @@ def read_loops(path, columns: list[str] | str | None = None, *,
                         "I [A]; the drive must be given.")
     if len(body) == 0:
         raise DataError(f"{path.name} has a header but no data rows.")
-    table = np.empty((len(body), len(columns)))
-    for r, (lineno, ln) in enumerate(body):
+    table = _fast_table(body, delim, len(columns))
+    for r, (lineno, ln) in enumerate(body if table is None else ()):
+        if r == 0:
+            table = np.empty((len(body), len(columns)))
         cells = _split(ln, delim)
         if len(cells) != len(columns):
             raise DataError(f"{path.name} line {lineno}: {len(cells)} values for "

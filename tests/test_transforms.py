@@ -417,13 +417,15 @@ def test_batched_parameters_given_to_simulate_are_refused_with_the_fix():
 def test_a_local_solve_traces_each_time_loop_once(monkeypatch):
     # the loops take seconds to trace: the forward loop (data, final evaluation) and the
     # partials pass (linearized in the solver's init and again in its step, under vmap)
-    # are each traced once; a drive length no other test uses keeps the count fresh
+    # are each traced once; a drive length no other test uses keeps the count fresh. (The
+    # sampling check of a coarse drive runs the loop at twice the substeps: another loop.)
     calls = []
-    for name in ("_time_loop", "_sensitivity_loop"):
+    for name, at in (("_time_loop", 3), ("_sensitivity_loop", 5)):
         original = getattr(mag, name)
 
-        def counted(*args, _original=original, _name=name, **kwargs):
-            calls.append(_name)
+        def counted(*args, _original=original, _name=name, _at=at, **kwargs):
+            if args[_at] == 2:  # the problem's substeps
+                calls.append(_name)
             return _original(*args, **kwargs)
 
         monkeypatch.setattr(mag, name, counted)

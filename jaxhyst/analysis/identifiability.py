@@ -117,7 +117,7 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     values = np.asarray(space.free_values(params), dtype=float)
     width = np.asarray(space.upper - space.lower)
     # signed θ0, so that x = dθ/θ0 = d log|θ| also for negative θ (α̃)
-    scale = np.where(values != 0, values, np.where(width > 0, width, 1.0))
+    scale = np.where(np.abs(values) > 1e-9 * width, values, np.where(width > 0, width, 1.0))
     J, e, sigma = (np.asarray(a) for a in _log_jacobian(problem, jnp.asarray(values),
                                                          jnp.asarray(scale)))
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(e))):

@@ -8,6 +8,13 @@ from pathlib import Path
 from jaxhyst._files import writes_in_place
 from jaxhyst.names import DEFAULT_SUBSTEPS, MAGNETIC_OUTPUT_NAMES
 
+from .fitting import (
+    decimated_first,
+    fit_by_options,
+    held_out_text,
+    leave_one_out,
+    widen_derived_box,
+)
 from .options import COUNT, EXIT_HELP, HYBRID, LOCAL, POSITIVE_INT, UNITS_HELP, VARIANTS
 from .spec import (
     CLIError,
@@ -119,22 +126,6 @@ def _read_start(args):
     return parameters_from_json(read_json(args.start), f"parameters in --start {args.start}")
 
 
-def _start_params(args, p, problem):
-    """The parameters ``p`` of --start for ``problem`` (per loop for a joint one)."""
-    import jax.numpy as jnp
-
-    from jaxhyst.identify import JointProblem
-
-    if isinstance(problem, JointProblem):  # per-loop leaves
-        L = problem.n_loops
-        p = type(p).from_array(jnp.broadcast_to(jnp.atleast_2d(p.to_array()),
-                                                (L, p.to_array().shape[-1])))
-    elif p.to_array().ndim != 1:
-        raise CLIError(f"--start {args.start}: a joint (per-loop) result cannot start a "
-                       "single-loop fit.")
-    return p
-
-
 def run(args) -> int:
     import jaxhyst as jh
     from jaxhyst._interrupt import stop_requested
@@ -165,7 +156,13 @@ def run(args) -> int:
         raise CLIError("--start applies to the local solvers (e.g. --method lm); a hybrid GA "
                        "searches the whole box.")
     start = _read_start(args)
+    size = os.path.getsize(spec["data"]) if os.path.isfile(spec["data"]) else 0
+    if size > 5e6 and args.progress:  # (a few seconds: say so before)
+        note("identify", f"reading {args.data} ({size / 1e6:.0f} MB) …")
     loops = read_loops(spec["data"], spec["columns"])
+    if size > 5e6 and args.progress:
+        note("identify", f"read {sum(lp.n_samples for lp in loops)} samples in "
+                         f"{len(loops)} loop{'s' if len(loops) > 1 else ''}")
     bounds, where = resolve_bounds(spec, given, loops)
     spec["bounds"] = bounds_to_json(bounds)
     problem = build_problem(spec, loops)  # (its warnings: one line each, see main)
@@ -177,7 +174,10 @@ def run(args) -> int:
                        "local solve (not checkpointed: rerun it).")
     if where and args.progress:  # (after every check of the input: errors stay one line)
         note("identify", where)
-    result = _fit(args, problem, method, start)
+    result = decimated_first(args, spec, loops, problem, method) or \
+        fit_by_options(args, problem, method, start)
+    if where and where.startswith("bounds derived") and not args.leave_one_out:
+        result, problem = widen_derived_box(args, spec, given, loops, problem, result)
     if stop_requested() and result.result != "interrupted":  # Ctrl-C during a local solve
         result = result.with_outcome("interrupted")
     d = result.to_dict()
@@ -186,7 +186,7 @@ def run(args) -> int:
         d["coefficients"] = {n: float(v) for n, v in result.params.items()}
     if "history" in result.extra:
         d["history"] = result.extra["history"]
-    held = _leave_one_out(args, spec, loops, method) if args.leave_one_out else None
+    held = leave_one_out(args, spec, loops, method) if args.leave_one_out else None
     if held is not None:
         d["leave_one_out"] = held
     figures = _identify_figure(args, problem, result, has_t=loops[0].t is not None) \
@@ -199,57 +199,12 @@ def run(args) -> int:
                       outcome=result.result, rms_error=result.rms_error,
                       output=result.output)
     wrote = [f for f in (args.out, args.save_model, *figures) if f]
-    text = str(result) + (_held_out_text(held) if held else "") + \
+    text = str(result) + (held_out_text(held) if held else "") + \
         "".join(f"\n  wrote {f}" for f in wrote)
     print_result(args, d, text)
     for w in result.warnings:
         warn(args, w)
     return _exit_status(result)
-
-
-def _fit(args, problem, method, start, quiet: bool = False):
-    """The fit the options ask for: a hybrid, one local solve, or a multi-start batch."""
-    import numpy as np
-
-    import jaxhyst as jh
-    from jaxhyst.progress import TextProgressMeter
-
-    progress = 0 if quiet else args.progress
-    n = problem.space.n_free
-    if method in HYBRID:
-        settings = {k: v for k, v in (("q1", args.population), ("T3", args.max_steps))
-                    if v is not None}
-        if args.generations is not None:  # in all: the binary-coded T1 first
-            from jaxhyst.identify import hybrid_method
-
-            T1 = int(hybrid_method(method).T1)
-            if args.generations <= T1:
-                raise CLIError(f"--generations {args.generations}: a hybrid runs {T1} "
-                               "binary-coded generations first; give more than that (the "
-                               "generations in all).")
-            settings["T2"] = args.generations - T1
-        if args.population is not None:
-            settings["q2"] = max(4, args.population // 4)
-        if args.checkpoint is None and args.resume:
-            raise CLIError("--resume needs --checkpoint FILE.")
-        meter = TextProgressMeter(every=progress) if progress else False
-        return jh.run_hybrid(problem, method, seed=args.seed, settings=settings,
-                             progress=meter, checkpoint=None if quiet else args.checkpoint,
-                             checkpoint_every=args.checkpoint_every,
-                             resume=args.resume and not quiet)
-    meter = TextProgressMeter(every=0, interval=2.0) if progress else False
-    if args.start or args.starts <= 1:  # one start: an earlier result, or the box centre
-        start = _start_params(args, start, problem) if args.start else np.full(n, 0.5)
-        if progress:
-            note(method, "one start " + (f"from {args.start}" if args.start
-                                         else "at the centre of the box"))
-        return jh.solve(problem, start, solver=method, max_steps=args.max_steps or 200,
-                        progress=meter)
-    starts = np.random.default_rng(args.seed).uniform(0.0, 1.0, (args.starts, n))
-    if progress:
-        note(method, f"{len(starts)} random starts in one vmapped batch")
-    return jh.multistart(problem, starts, solver=method, max_steps=args.max_steps or 200,
-                         progress=meter)
 
 
 def records_of(problem):
@@ -274,49 +229,6 @@ def error_summary(predicted, data) -> dict:
     e = np.asarray(predicted) - np.asarray(data)
     return {"rms": float(np.sqrt(np.mean(e**2))), "max_abs": float(np.max(np.abs(e))),
             "data_scale": float(np.max(np.abs(data)))}
-
-
-def _leave_one_out(args, spec, loops, method) -> list[dict]:
-    """Fit every loop but one (as the whole fit was made) and predict the one left out,
-    for each loop: [{loop, rms, max_abs, data_scale, rms_fitted}] (the loop's unit)."""
-
-    import warnings
-
-    from jaxhyst._interrupt import stop_requested
-    from jaxhyst.identify import ConditionWarning
-
-    rows = []
-    for i, held in enumerate(loops):
-        if stop_requested():
-            break
-        rest = [lp for j, lp in enumerate(loops) if j != i]
-        problem = build_problem(spec, rest)
-        note("leave-one-out", f"fitting without loop {held.index} ({len(rest)} loops) …")
-        result = _fit(args, problem, method, None, quiet=True)
-        with warnings.catch_warnings(record=True) as caught:  # (an extrapolation is
-            warnings.simplefilter("always", ConditionWarning)  # part of the row instead)
-            predicted, data = predict_loops(spec, problem, result.params, [held])[0]
-        beyond = [" ".join(str(w.message).split()) for w in caught
-                  if issubclass(w.category, ConditionWarning)]
-        for w in caught:
-            if not issubclass(w.category, ConditionWarning):
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        rows.append({"loop": held.index, **error_summary(predicted, data),
-                     "rms_fitted": result.rms_error, "outcome": result.result,
-                     "extrapolated": beyond})
-    return rows
-
-
-def _held_out_text(rows) -> str:
-    lines = ["\n  leave one loop out: the loop predicted from the others' fit"]
-    for r in rows:
-        lines.append(f"    loop {r['loop']}: rms {r['rms']:.4g} (max {r['max_abs']:.4g}; "
-                     f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|), the others' "
-                     f"fit rms {r['rms_fitted']:.4g}"
-                     + ("; extrapolated: " + "; ".join(m.removeprefix("a prediction ")
-                                                       for m in r["extrapolated"])
-                        if r.get("extrapolated") else ""))
-    return "\n".join(lines)
 
 
 def predict_loops(spec, fitted, params, loops, conditions=None) -> list:
@@ -400,11 +312,16 @@ def _identify_figure(args, problem, result, has_t: bool) -> list[str]:
 
 
 def _exit_status(result) -> int:
-    """0 for a converged fit, 130 for an interrupted run, 3 for one that stopped short,
-    failed (max steps, non-finite cost, solver failure) or ended far from its data, 4 for
-    a converged fit with a parameter at a bound."""
+    """0 for a converged fit (a parameter at its physical limit included: the result
+    says so), 130 for an interrupted run, 3 for one that stopped short, failed (max
+    steps, non-finite cost, solver failure) or ended far from its data, 4 for a converged
+    fit with a parameter at a bound of its box that is not a physical limit."""
     if result.result == "interrupted":
         return 130
     if not result.success or result.far_from_data:
         return 3
-    return 4 if result.at_bound else 0
+    from jaxhyst.params import at_physical_limit
+
+    box = [n for n, (_, bound) in result.at_bound.items()
+           if not at_physical_limit(n, bound)]  # (a physical limit is the model's, fine)
+    return 4 if box else 0

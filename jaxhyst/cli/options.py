@@ -15,7 +15,9 @@ EXIT_HELP = ("Exit status: 0 success; 2 bad input (one-line message); 3 the fit 
              "short (step limit reached, non-finite cost or solver failure) or ended far from "
              "its data (a loop's rms error above 20 % of its size, or far above the other "
              "loops'): the result is written and says so; 4 converged with a parameter at a "
-             "bound (a constrained optimum: widen the bounds); 130 interrupted "
+             "bound of its box that is not a physical limit (a box derived from the data is "
+             "widened and the fit redone first; a bound you gave: widen it); a parameter at "
+             "its physical limit (c = 0 or 1 …) is reported but exits 0; 130 interrupted "
              "(Ctrl-C/SIGTERM: the best point so far and the checkpoint are written).")
 
 LOCAL = SOLVER_NAMES

@@ -21,6 +21,7 @@ field amplitude Hmax, magnetization amplitude Mmax, coercive field Hc, remanence
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -241,6 +242,69 @@ def loop_bounds(Hs, datas, output: str, bounds=None) -> Bounds:
                 where = f"loop {i}: " if len(Hs) > 1 else ""
                 raise ValueError(f"{where}{what} contain NaN or inf at samples "
                                  f"{bad[:5].tolist()}; remove or repair them.")
+    for i, (H, d) in enumerate(zip(Hs, datas, strict=True)):
+        where = f"loop {i}: " if len(Hs) > 1 else ""
+        for what, a, unit in (("H", H, "A/m"), ("the data", d, "T" if output ==
+                                                  "flux_density" else "A/m")):
+            spike = find_spike(a)
+            if spike is not None:
+                k, jump, step = spike
+                raise ValueError(
+                    f"{where}sample {k} of {what} ({float(np.asarray(a)[k]):g} {unit}) is a "
+                    f"spike: {jump:.3g} {unit} off its neighbours, whose steps are "
+                    f"~{step:.2g} {unit}; it would set the box (and the fit) — remove or "
+                    "repair that sample.")
+        offset = field_offset(H, d)
+        if offset is not None:
+            warnings.warn(f"{where}the field looks offset by {offset:.4g} A/m: the loop's "
+                          "data are symmetric about 0 but its field tips are not; a DC "
+                          "offset of H (a zero error of the field measurement) keeps a "
+                          "symmetric model from fitting — subtract it from H.", LoopWarning,
+                          stacklevel=3)
     feats = [loop_features(H, magnetization_of(d, H, output))
              for H, d in zip(Hs, datas, strict=True)]
     return merge_bounds(default_loop_bounds(feats), dict(bounds or {}))
+
+
+class LoopWarning(UserWarning):
+    """Something in a measured loop that keeps the model from fitting it (named)."""
+
+
+#: A sample this many times the loop's typical step away from its running median, and
+#: more than `SPIKE_FRACTION` of the loop's range, is a spike.
+SPIKE_STEPS, SPIKE_FRACTION = 30.0, 0.2
+
+
+def find_spike(x) -> tuple[int, float, float] | None:
+    """(index, distance from its neighbours' median, typical step) of the worst isolated
+    spike of the record ``x`` (a sample far from both neighbours while they agree), or
+    None. A loop is a continuous curve in sample order, so a good sample lies within a
+    few steps of its neighbours."""
+    x = np.asarray(x, float)
+    if x.size < 8:
+        return None
+    step = float(np.median(np.abs(np.diff(x))))
+    pad = np.concatenate([x[:1], x, x[-1:]])
+    neighbours = 0.5 * (pad[:-2] + pad[2:])
+    jump = np.abs(x - neighbours)
+    k = int(np.argmax(jump))
+    rest = np.delete(x, k)
+    span = float(np.ptp(rest)) if rest.size else 0.0
+    if span > 0 and jump[k] > SPIKE_STEPS * max(step, 1e-300) and \
+            jump[k] > SPIKE_FRACTION * span and abs(pad[k] - pad[k + 2]) < 0.5 * jump[k]:
+        return k, float(jump[k]), step
+    return None
+
+
+def field_offset(H, data) -> float | None:
+    """The DC offset of a loop's field, (Hmax + Hmin)/2, where the data are symmetric
+    about 0 (|max + min| within 5 % of their range) but the field tips are not (offset
+    above 10 % of the field's range); else None."""
+    H, d = np.asarray(H, float), np.asarray(data, float)
+    if not (np.ptp(H) > 0 and np.ptp(d) > 0):
+        return None
+    d_sym = abs(d.max() + d.min()) / np.ptp(d)
+    offset = 0.5 * (H.max() + H.min())
+    if d_sym < 0.05 and abs(offset) > 0.1 * np.ptp(H):
+        return float(offset)
+    return None

@@ -1,0 +1,203 @@
+"""The fits ``jaxhyst identify`` makes: the one its options ask for (`fit_by_options`), the
+refits after it — the data-derived box widened where the fit ended on it
+(`widen_derived_box`) — and the leave-one-out folds (`leave_one_out`)."""
+
+from __future__ import annotations
+
+from .options import HYBRID
+from .spec import CLIError, build_problem, note
+
+#: Widenings of the data-derived box a fit may ask for, and the factor of each.
+WIDENINGS, WIDEN = 3, 5.0
+
+
+def widen_derived_box(args, spec, given, loops, problem, result):
+    """A box derived from the data is no constraint of the data: where a fit ends on one
+    of its bounds (not one the user gave, not a physical limit), widen that bound
+    `WIDEN`-fold (within the physical range) and refit from the result with LM, up to
+    `WIDENINGS` times. Returns the last (result, problem)."""
+    import numpy as np
+
+    from jaxhyst.io import bounds_from_json, bounds_to_json
+    from jaxhyst.params import PHYSICAL_RULES, at_physical_limit
+
+    for _ in range(WIDENINGS):
+        if result.result == "interrupted" or isinstance(result.params, dict):
+            break
+        box = bounds_to_json(bounds_from_json(spec["bounds"]))
+        widened = []
+        for name, (side, bound) in result.at_bound.items():
+            base = name.split("[")[0]
+            if base in (given or {}) or at_physical_limit(base, bound) or base not in box:
+                continue
+            lo, hi = box[base]
+            if side == "upper":
+                new = hi * WIDEN if lo > 0 else hi + (WIDEN - 1) * (hi - lo)
+            else:
+                new = lo / WIDEN if lo > 0 else lo - (WIDEN - 1) * (hi - lo)
+            ok = PHYSICAL_RULES.get(base, (lambda v: np.isfinite(v), ""))[0]
+            while not ok(np.float64(new)) and abs(new - bound) > 1e-12 * abs(bound):
+                new = 0.5 * (new + bound)  # (back inside the physical range)
+            if abs(new - bound) <= 1e-9 * max(abs(bound), 1e-300):
+                continue
+            box[base] = [new, hi] if side == "lower" else [lo, new]
+            widened.append(f"{base} {side} {bound:.4g} → {new:.4g}")
+        if not widened:
+            break
+        if args.progress:
+            note("identify", "the fit ended on the data-derived box (no constraint of the "
+                             "data): widening " + ", ".join(widened) + " and refitting")
+        spec["bounds"] = box
+        problem = build_problem(spec, loops)
+        result = refine_from(args, problem, result.params)
+    return result, problem
+
+
+def _start_params(args, p, problem):
+    """The parameters ``p`` of --start for ``problem`` (per loop for a joint one)."""
+    import jax.numpy as jnp
+
+    from jaxhyst.identify import JointProblem
+
+    if isinstance(problem, JointProblem):  # per-loop leaves
+        L = problem.n_loops
+        p = type(p).from_array(jnp.broadcast_to(jnp.atleast_2d(p.to_array()),
+                                                (L, p.to_array().shape[-1])))
+    elif p.to_array().ndim != 1:
+        raise CLIError(f"--start {args.start}: a joint (per-loop) result cannot start a "
+                       "single-loop fit.")
+    return p
+
+
+def fit_by_options(args, problem, method, start, quiet: bool = False):
+    """The fit the options ask for: a hybrid, one local solve, or a multi-start batch."""
+    import numpy as np
+
+    import jaxhyst as jh
+    from jaxhyst.progress import TextProgressMeter
+
+    progress = 0 if quiet else args.progress
+    n = problem.space.n_free
+    if method in HYBRID:
+        settings = {k: v for k, v in (("q1", args.population), ("T3", args.max_steps))
+                    if v is not None}
+        if args.generations is not None:  # in all: the binary-coded T1 first
+            from jaxhyst.identify import hybrid_method
+
+            T1 = int(hybrid_method(method).T1)
+            if args.generations <= T1:
+                raise CLIError(f"--generations {args.generations}: a hybrid runs {T1} "
+                               "binary-coded generations first; give more than that (the "
+                               "generations in all).")
+            settings["T2"] = args.generations - T1
+        if args.population is not None:
+            settings["q2"] = max(4, args.population // 4)
+        if args.checkpoint is None and args.resume:
+            raise CLIError("--resume needs --checkpoint FILE.")
+        meter = TextProgressMeter(every=progress) if progress else False
+        return jh.run_hybrid(problem, method, seed=args.seed, settings=settings,
+                             progress=meter, checkpoint=None if quiet else args.checkpoint,
+                             checkpoint_every=args.checkpoint_every,
+                             resume=args.resume and not quiet)
+    meter = TextProgressMeter(every=0, interval=2.0) if progress else False
+    if args.start or args.starts <= 1:  # one start: an earlier result, or the box centre
+        start = _start_params(args, start, problem) if args.start else np.full(n, 0.5)
+        if progress:
+            note(method, "one start " + (f"from {args.start}" if args.start
+                                         else "at the centre of the box"))
+        return jh.solve(problem, start, solver=method, max_steps=args.max_steps or 200,
+                        progress=meter)
+    starts = np.random.default_rng(args.seed).uniform(0.0, 1.0, (args.starts, n))
+    if progress:
+        note(method, f"{len(starts)} random starts in one vmapped batch")
+    return jh.multistart(problem, starts, solver=method, max_steps=args.max_steps or 200,
+                         progress=meter)
+
+
+def refine_from(args, problem, params, what: str = "from the previous fit"):
+    """One LM solve of ``problem`` from ``params`` (a fit's result)."""
+    import jaxhyst as jh
+    from jaxhyst.progress import TextProgressMeter
+
+    if args.progress:
+        note("lm", f"one start {what}")
+    meter = TextProgressMeter(every=0, interval=2.0) if args.progress else False
+    return jh.solve(problem, params, solver="lm", max_steps=args.max_steps or 200,
+                    progress=meter)
+
+
+#: Observed samples per loop above which a multi-start local fit first runs on every
+#: k-th sample (rate-independent M or B loops) and is then polished on all of them.
+DECIMATE_ABOVE = 4000
+DECIMATED = 2000
+
+
+def decimated_first(args, spec, loops, problem, method):
+    """For long M or B loops (more than `DECIMATE_ABOVE` samples in a loop) and a
+    multi-start local fit: the starts on every k-th sample (at most `DECIMATED` per loop;
+    the loop's shape is what the parameters are fitted to, and the starts' work grows
+    with the samples), then one LM solve on all samples from the best — so that the
+    cost grows linearly with the data. None where it does not apply."""
+    import dataclasses
+
+    from jaxhyst.identify.outputs import output_kind
+
+    longest = max(lp.n_samples for lp in loops)
+    if (longest <= DECIMATE_ABOVE or method in HYBRID or args.start or args.starts <= 1
+            or not output_kind(problem.output).magnetic_only):
+        return None
+    k = -(-longest // DECIMATED)
+    thin = [dataclasses.replace(
+        lp, t=None if lp.t is None else lp.t[::k], H=None if lp.H is None else lp.H[::k],
+        I=None if lp.I is None else lp.I[::k],
+        signals={q: a[::k] for q, a in lp.signals.items()}) for lp in loops]
+    if args.progress:
+        note("identify", f"{longest} samples in a loop: the starts on every {k}th sample, "
+                         "then one solve on all of them")
+    coarse = fit_by_options(args, build_problem(spec, thin), method, None)
+    return refine_from(args, problem, coarse.params, "from the best on the thinned loops")
+
+
+def leave_one_out(args, spec, loops, method) -> list[dict]:
+    """Fit every loop but one (as the whole fit was made) and predict the one left out,
+    for each loop: [{loop, rms, max_abs, data_scale, rms_fitted}] (the loop's unit)."""
+
+    import warnings
+
+    from jaxhyst._interrupt import stop_requested
+    from jaxhyst.identify import ConditionWarning
+
+    from .identify import error_summary, predict_loops
+
+    rows = []
+    for i, held in enumerate(loops):
+        if stop_requested():
+            break
+        rest = [lp for j, lp in enumerate(loops) if j != i]
+        problem = build_problem(spec, rest)
+        note("leave-one-out", f"fitting without loop {held.index} ({len(rest)} loops) …")
+        result = fit_by_options(args, problem, method, None, quiet=True)
+        with warnings.catch_warnings(record=True) as caught:  # (an extrapolation is
+            warnings.simplefilter("always", ConditionWarning)  # part of the row instead)
+            predicted, data = predict_loops(spec, problem, result.params, [held])[0]
+        beyond = [" ".join(str(w.message).split()) for w in caught
+                  if issubclass(w.category, ConditionWarning)]
+        for w in caught:
+            if not issubclass(w.category, ConditionWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        rows.append({"loop": held.index, **error_summary(predicted, data),
+                     "rms_fitted": result.rms_error, "outcome": result.result,
+                     "extrapolated": beyond})
+    return rows
+
+
+def held_out_text(rows) -> str:
+    lines = ["\n  leave one loop out: the loop predicted from the others' fit"]
+    for r in rows:
+        lines.append(f"    loop {r['loop']}: rms {r['rms']:.4g} (max {r['max_abs']:.4g}; "
+                     f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|), the others' "
+                     f"fit rms {r['rms_fitted']:.4g}"
+                     + ("; extrapolated: " + "; ".join(m.removeprefix("a prediction ")
+                                                       for m in r["extrapolated"])
+                        if r.get("extrapolated") else ""))
+    return "\n".join(lines)
