@@ -242,7 +242,8 @@ class Bounds(eqx.Module):
             ok, rule = PHYSICAL_RULES[n]
             for which, v in (("lower", l_), ("upper", h_)):
                 if not np.all(ok(v)):
-                    raise ValueError(f"Bounds: the {which} bound of {n} is {v!r}; {n} {rule}.")
+                    raise ValueError(f"Bounds: the {which} bound of {n} is {float(v):g}; {n} "
+                                     f"{rule}.")
 
     @classmethod
     def from_dict(cls, d: dict[str, tuple[float, float]]) -> Bounds:

@@ -123,6 +123,7 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(e))):
         raise ValueError("The model output or its Jacobian is not finite at these parameters; "
                          "the identifiability analysis needs a point where the model runs.")
+    J, e, sigma, disagree = _declared_sigma_check(problem, J, e, np.asarray(sigma))
     lower, upper = np.asarray(space.lower), np.asarray(space.upper)
     status = bound_status(values, lower, upper)
     at_bound = {names[i]: (b, float(lower[i] if b == "lower" else upper[i]))
@@ -134,6 +135,7 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
                                            a["std_errors"])
     group_sigma = {g.name: (float(s), g.sigma is None)
                    for g, s in zip(problem.groups, sigma, strict=True)}
+    group_sigma.update(disagree)
     combos = []
     units = tuple(_unit(n) for n in names)
     rep = IdentifiabilityReport(
@@ -207,6 +209,35 @@ def _residuals_at(problem, X):
         return jnp.concatenate([jnp.ravel(g) for g in r])
 
     return jax.vmap(one)(X)
+
+
+#: A declared σ whose whitened residuals' rms lies outside [1/SIGMA_RATIO, SIGMA_RATIO]
+#: (in a group of at least `SIGMA_MIN_SIZE` residuals) does not describe the data.
+SIGMA_RATIO, SIGMA_MIN_SIZE = 3.0, 20
+
+
+def _declared_sigma_check(problem, J, e, sigma):
+    """(J, e, σ, {group: (σ used, "declared σ disagrees")}) where a residual group's
+    declared noise level disagrees with its residuals by more than `SIGMA_RATIO` (a σ set
+    only to allow a prior, say): that group is whitened by the residuals' own rms
+    instead, so that the intervals reflect the data; the report says so."""
+    sizes = [g.size for g in problem.groups]
+    ends = np.cumsum([0, *sizes])
+    J, e, sigma = J.copy(), e.copy(), sigma.copy()
+    out = {}
+    for k, g in enumerate(problem.groups):
+        if g.sigma is None or g.size < SIGMA_MIN_SIZE:
+            continue
+        rows = slice(ends[k], ends[k + 1])
+        rms = float(np.sqrt(np.mean(e[rows] ** 2)))
+        if 1.0 / SIGMA_RATIO <= rms <= SIGMA_RATIO or not rms > 0:
+            continue
+        J[rows] /= rms
+        e[rows] /= rms
+        sigma[k] = sigma[k] * rms
+        out[g.name] = (float(sigma[k]), f"declared {float(g.sigma):.3g} disagrees with the "
+                                        f"residuals ({rms:.2g}×): estimated")
+    return J, e, sigma, out
 
 
 def _bound_aware(names, values, scale, lower, upper, status, J, e, std_errors):

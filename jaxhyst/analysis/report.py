@@ -215,7 +215,8 @@ class IdentifiabilityReport:
         }  # fmt: skip
 
     def __str__(self) -> str:
-        sig = ", ".join(f"{k} {v[0]:.3g}{' (est.)' if v[1] else ''}"
+        sig = ", ".join(f"{k} {v[0]:.3g}" + (f" ({v[1]})" if isinstance(v[1], str) else
+                                              " (est.)" if v[1] else "")
                         for k, v in self.group_sigma.items())
         at = self.at_bound or {}
         held = (f" ({len(at)} at a bound: intervals from the profile with that constraint)"
