@@ -273,7 +273,36 @@ def _cauchy_small(rtol, atol, norm, y, y_diff, f, f_diff):
     return y_ok & f_ok
 
 
-class BoxTermination(optx.AbstractLeastSquaresSolver):
+class AbstractTerminationWrapper(optx.AbstractLeastSquaresSolver):
+    """A Gauss–Newton-family solver (``inner``) with one more way to stop: a final
+    subclass implements ``step`` (the inner step, then its own test setting the state's
+    ``terminate``); everything else is the inner solver's."""
+
+    inner: eqx.AbstractVar[optx.AbstractLeastSquaresSolver]
+
+    @property
+    def rtol(self):
+        return self.inner.rtol
+
+    @property
+    def atol(self):
+        return self.inner.atol
+
+    @property
+    def norm(self):
+        return self.inner.norm
+
+    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+        return self.inner.init(fn, y, args, options, f_struct, aux_struct, tags)
+
+    def terminate(self, fn, y, args, options, state, tags):
+        return self.inner.terminate(fn, y, args, options, state, tags)
+
+    def postprocess(self, fn, y, aux, args, options, state, tags, result):
+        return self.inner.postprocess(fn, y, aux, args, options, state, tags, result)
+
+
+class BoxTermination(AbstractTerminationWrapper):
     """A Gauss–Newton-family solver whose Cauchy test may also pass in box coordinates.
 
     The solvers iterate in z with u = (1 + sin z)/2. When the optimum lies on a bound
@@ -288,21 +317,6 @@ class BoxTermination(optx.AbstractLeastSquaresSolver):
 
     inner: optx.AbstractLeastSquaresSolver
 
-    @property
-    def rtol(self):
-        return self.inner.rtol
-
-    @property
-    def atol(self):
-        return self.inner.atol
-
-    @property
-    def norm(self):
-        return self.inner.norm
-
-    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
-        return self.inner.init(fn, y, args, options, f_struct, aux_struct, tags)
-
     def step(self, fn, y, args, options, state, tags):
         y_new, new_state, aux = self.inner.step(fn, y, args, options, state, tags)
         accepted = (new_state.num_accepted_steps > state.num_accepted_steps) & ~state.first_step
@@ -313,14 +327,8 @@ class BoxTermination(optx.AbstractLeastSquaresSolver):
         terminate = new_state.terminate | (accepted & in_box)
         return y_new, eqx.tree_at(lambda s: s.terminate, new_state, terminate), aux
 
-    def terminate(self, fn, y, args, options, state, tags):
-        return self.inner.terminate(fn, y, args, options, state, tags)
 
-    def postprocess(self, fn, y, aux, args, options, state, tags, result):
-        return self.inner.postprocess(fn, y, aux, args, options, state, tags, result)
-
-
-class TargetTermination(optx.AbstractLeastSquaresSolver):
+class TargetTermination(AbstractTerminationWrapper):
     """A Gauss–Newton-family solver that also stops once an accepted point's cost Σr²
     is at most ``target``: a solve that only has to be as accurate as its model (a
     compensating input refined to the model's own accuracy) need not run on to
@@ -330,21 +338,6 @@ class TargetTermination(optx.AbstractLeastSquaresSolver):
     inner: optx.AbstractLeastSquaresSolver
     target: float
 
-    @property
-    def rtol(self):
-        return self.inner.rtol
-
-    @property
-    def atol(self):
-        return self.inner.atol
-
-    @property
-    def norm(self):
-        return self.inner.norm
-
-    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
-        return self.inner.init(fn, y, args, options, f_struct, aux_struct, tags)
-
     def step(self, fn, y, args, options, state, tags):
         y_new, new_state, aux = self.inner.step(fn, y, args, options, state, tags)
         accepted = (new_state.num_accepted_steps > state.num_accepted_steps) & ~state.first_step
@@ -352,16 +345,10 @@ class TargetTermination(optx.AbstractLeastSquaresSolver):
         terminate = new_state.terminate | (accepted & reached)
         return y_new, eqx.tree_at(lambda s: s.terminate, new_state, terminate), aux
 
-    def terminate(self, fn, y, args, options, state, tags):
-        return self.inner.terminate(fn, y, args, options, state, tags)
-
-    def postprocess(self, fn, y, aux, args, options, state, tags, result):
-        return self.inner.postprocess(fn, y, aux, args, options, state, tags, result)
-
 
 def _inner(solver):
     """The solver a `BoxTermination` wraps (its state is that solver's), else itself."""
-    return solver.inner if isinstance(solver, (BoxTermination, TargetTermination)) else solver
+    return solver.inner if isinstance(solver, AbstractTerminationWrapper) else solver
 
 
 def accepted_residuals(solver, state):
