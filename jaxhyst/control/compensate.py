@@ -79,8 +79,9 @@ class Compensation:
       ``unreachable``: the stretches of the reference beyond the actuator
       (`jaxhyst.control.reach.Unreachable`, empty if it is all reachable).
     - ``steps`` of the refinement, its ``outcome`` (``successful``, ``max_steps_reached``
-      or ``not refined``), ``seconds`` the whole call took after compilation of what it
-      runs, ``run_in_periods`` of a periodic reference.
+      or ``not refined``), ``seconds``: the wall time of the call (the first call for a
+      reference of a new length compiles, ~10 s; later ones reuse the programs),
+      ``run_in_periods`` of a periodic reference.
     """
 
     reference: Reference
