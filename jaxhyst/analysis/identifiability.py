@@ -192,7 +192,7 @@ def _linearity(problem, rep, e, sigma) -> dict:
     whitening = np.repeat(np.asarray(sigma), [g.size for g in problem.groups])
     r = np.asarray(_residuals_at(problem, jnp.asarray(np.array(points))))
     chi2 = np.sum((r / whitening) ** 2, axis=1) + _prior_chi2(problem, np.array(points))
-    base = float(np.sum(e[: whitening.size] ** 2)) + float(np.sum(e[whitening.size:] ** 2))
+    base = float(np.sum(e**2))  # (data and prior rows, as chi2)
     delta = (chi2 - base).reshape(len(labels), 2) / Z95**2
     return {label: (float(d[0]), float(d[1])) for label, d in zip(labels, delta, strict=True)}
 

@@ -34,7 +34,8 @@ import math
 
 import numpy as np
 
-Z95 = 1.959963984540054
+from .report import Z95
+
 #: How each interval was made.
 METHODS = {
     "wald": "Wald (linearised, no bound active)",

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from jaxhyst.names import DEFAULT_SUBSTEPS
 
-from .options import COUNT, FINITE, POSITIVE, POSITIVE_INT, UNITS_HELP, VARIANTS
+from .options import COUNT, FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_INT, UNITS_HELP, VARIANTS
 from .spec import (
     CLIError,
     actuator_arg,
@@ -67,7 +67,7 @@ def add_parser(sub) -> None:
                         "current, or A/m of AC field for an actuator without turns per metre")
     parser.add_argument("--slew-limit", type=POSITIVE,
                         help="largest |d input/dt|, A/s (or A/m per s)")
-    parser.add_argument("--tolerance", type=number_at_least_zero(), default=1e-6,
+    parser.add_argument("--tolerance", type=NON_NEGATIVE, default=1e-6,
                         help="stop refining at this rms error / peak-to-peak (default 1e-6)")
     parser.add_argument("--max-steps", type=POSITIVE_INT, default=100,
                         help="Levenberg–Marquardt steps at most")
@@ -84,12 +84,6 @@ def add_parser(sub) -> None:
     parser.add_argument("--periods", type=COUNT, default=1,
                         help="periods of a periodic input written to --csv (default 1)")
     parser.set_defaults(func=run)
-
-
-def number_at_least_zero():
-    from .options import number
-
-    return number(float, 0.0, False, "a number >= 0")
 
 
 def _floats(text: str, option: str) -> list[float]:
@@ -249,7 +243,7 @@ def run(args) -> int:
 
     from jaxhyst.control import IterativeLearning, compensate
     from jaxhyst.control.compensate import rms_error
-    from jaxhyst.control.tracking import Tracking, evaluate
+    from jaxhyst.control.tracking import evaluate
     from jaxhyst.io import write_columns_csv, write_json
     from jaxhyst.progress import TextProgressMeter
 
@@ -268,7 +262,7 @@ def run(args) -> int:
             state = learner.step(learner.state_for(applied), measured)
             result = learner.compensation
             u = state.input
-            y = evaluate(Tracking.of(model, reference, result.run_in_periods), u)
+            y = evaluate(learner.residuals.tracking, u)  # (the model, as it learns)
         else:
             result = compensate(model, reference, refine=not args.no_refine, **options)
             u, y = result.input, result.displacement

@@ -44,6 +44,7 @@ def number(kind, minimum, strict: bool, what: str):
 POSITIVE_INT = number(int, 0, True, "a positive integer")
 COUNT = number(int, 0, False, "an integer >= 0")
 POSITIVE = number(float, 0.0, True, "a positive number")
+NON_NEGATIVE = number(float, 0.0, False, "a number >= 0")
 FINITE = number(float, -math.inf, True, "a finite number")
 
 

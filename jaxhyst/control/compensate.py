@@ -30,6 +30,7 @@ import optimistix as optx
 
 from ..drive import Drive
 from ..identify import TargetTermination, jacobian_linearized
+from ..model.accuracy import richardson_error
 from ..progress import progress_meter
 from ..saved import Model
 from .inverse import inverse_input
@@ -255,8 +256,7 @@ def _check_accuracy(tracking: Tracking, u: np.ndarray, scale: float) -> None:
     finer = eqx.tree_at(lambda t: t.model, tracking,
                         Model(model.params, model.actuator, model.variant,
                               2 * model.substeps, model.losses))
-    y, y2 = evaluate(tracking, u), evaluate(finer, u)
-    error = float(np.max(np.abs(y - y2))) * 16.0 / 15.0 / scale
+    error = richardson_error(evaluate(tracking, u), evaluate(finer, u), size=scale)
     if not np.isfinite(error) or error <= COARSE:
         return
     N = tracking.n

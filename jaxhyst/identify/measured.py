@@ -236,14 +236,12 @@ def loop_bounds(Hs, datas, output: str, bounds=None) -> Bounds:
     if not isinstance(Hs, (list, tuple)):
         Hs, datas = [Hs], [datas]
     for i, (H, d) in enumerate(zip(Hs, datas, strict=True)):
+        where = f"loop {i}: " if len(Hs) > 1 else ""
         for what, a in (("H", H), ("data", d)):
             bad = np.flatnonzero(~np.isfinite(np.asarray(a, dtype=float)))
             if bad.size:
-                where = f"loop {i}: " if len(Hs) > 1 else ""
                 raise ValueError(f"{where}{what} contain NaN or inf at samples "
                                  f"{bad[:5].tolist()}; remove or repair them.")
-    for i, (H, d) in enumerate(zip(Hs, datas, strict=True)):
-        where = f"loop {i}: " if len(Hs) > 1 else ""
         for what, a, unit in (("H", H, "A/m"), ("the data", d, "T" if output ==
                                                   "flux_density" else "A/m")):
             spike = find_spike(a)

@@ -176,11 +176,12 @@ def _after_the_loop(variant, p, Ar, t, H, M_sub, k_sub, uniform: bool, S: int,
         x = jnp.concatenate([jnp.zeros((1, 2), dtype=H.dtype), x])
     else:  # at rest up to the observed periods, then their steady state
         J = periodic_from * S
-        before = structural_response(p, steps[:J], w[:J], uniform)[S - 1 :: S]
         start, during = periodic_structural_response(p, steps[J:], w[J:], uniform)
-        x = jnp.concatenate([jnp.zeros((1, 2), dtype=H.dtype), before[:-1], start[None],
-                             during[S - 1 :: S]]) if periodic_from else \
-            jnp.concatenate([start[None], during[S - 1 :: S]])
+        parts = [start[None], during[S - 1 :: S]]
+        if periodic_from:  # (the run-in from rest; its last sample is the steady start)
+            before = structural_response(p, steps[:J], w[:J], uniform)[S - 1 :: S]
+            parts = [jnp.zeros((1, 2), dtype=H.dtype), before[:-1], *parts]
+        x = jnp.concatenate(parts)
     Man, _ = anhysteretic(H, M, p)
     return (M, Man, variant.irreversible_magnetization(H, M, p),
             magnetostriction(M, p.Ms, p.lambda_s), x[:, 0], x[:, 1])
