@@ -167,7 +167,7 @@ def leave_one_out(args, spec, loops, method) -> list[dict]:
     from jaxhyst._interrupt import stop_requested
     from jaxhyst.identify import ConditionWarning
 
-    from .identify import error_summary, predict_loops
+    from .predictions import error_summary, predict_loops
 
     rows = []
     for i, held in enumerate(loops):

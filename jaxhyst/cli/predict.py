@@ -43,7 +43,7 @@ def run(args) -> int:
     from jaxhyst.identify.conditions import ConditionWarning
     from jaxhyst.io import read_loops, write_columns_csv
 
-    from .identify import error_summary, predict_loops, records_of
+    from .predictions import error_summary, predict_loops, records_of
 
     check_outputs(args)
     _, spec, fitted, params = load_result(args.result)

@@ -1,0 +1,69 @@
+"""What a fit predicts for loops, shared by ``identify`` (its leave-one-out folds and
+figures), ``predict`` and the refits: the problem over the loops themselves, the model's
+prediction of each loop and its error."""
+
+from __future__ import annotations
+
+from .spec import CLIError, loop_conditions, loop_drive
+
+
+def records_of(problem):
+    """The problem over the loops themselves: a condition model's records problem, else
+    the problem."""
+    import jaxhyst as jh
+
+    return problem.records if isinstance(problem, jh.ConditionProblem) else problem
+
+
+def joint_view(problem, params):
+    """(the joint problem over the loops, its per-loop parameters) of a joint or
+    condition-model problem at ``params``."""
+    records = records_of(problem)
+    return records, (params if records is problem else problem.per_record(params))
+
+
+def error_summary(predicted, data) -> dict:
+    """{rms, max_abs, data_scale} of predicted − data (the data's unit)."""
+    import numpy as np
+
+    e = np.asarray(predicted) - np.asarray(data)
+    return {"rms": float(np.sqrt(np.mean(e**2))), "max_abs": float(np.max(np.abs(e))),
+            "data_scale": float(np.max(np.abs(data)))}
+
+
+def predict_loops(spec, fitted, params, loops, conditions=None) -> list:
+    """The model's prediction and the data of each loop of ``loops`` (`jaxhyst.io.Loop`,
+    of the fitted data or new ones), from a fit of ``fitted`` (the problem built from
+    ``spec``) at ``params``: [(predicted, data or None)] in the fitted output's unit. A
+    condition model is evaluated at each loop's conditions (``conditions``:
+    {"frequency": …, "temperature": …} overriding the file's); shared joint parameters
+    are used as they are; a single-loop fit's parameters likewise."""
+    import numpy as np
+
+    import jaxhyst as jh
+    from jaxhyst.identify.outputs import output_kind
+    from jaxhyst.io import SIGNAL_OUTPUTS
+
+    records = records_of(fitted)
+    kind = output_kind(records.output if records.output != "mixed" else records.outputs[0])
+    actuator = records.actuator
+    out = []
+    for lp in loops:
+        if isinstance(fitted, jh.ConditionProblem):
+            p = fitted.at(params, loop_conditions(spec, [lp], actuator, conditions))
+            p = jh.Parameters.from_array(np.asarray(p.to_array())[0])
+        elif np.ndim(params.Ms) == 1:
+            values = np.asarray(params.to_array())
+            if np.ptp(values, axis=0).max() > 0:
+                raise CLIError("the fit has parameters per loop (--per-loop): it cannot "
+                               "predict another loop; fit with shared parameters or --vary.")
+            p = jh.Parameters.from_array(values[0])
+        else:
+            p = params
+        name = next((q for q, k in SIGNAL_OUTPUTS.items() if k == kind.name), None)
+        drive = loop_drive(spec, lp, name or "B", actuator)
+        sim = jh.simulate(p, actuator, drive, records.variant, records.substeps)
+        predicted = np.asarray(drive.observed(kind.of(sim)))
+        data = lp.signals.get(name)
+        out.append((predicted, None if data is None else np.asarray(data)))
+    return out
