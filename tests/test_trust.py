@@ -149,9 +149,11 @@ def test_a_derived_box_that_binds_is_widened_and_the_fit_redone(tmp_path, capsys
 
 def test_the_report_says_where_its_linear_intervals_are_not_to_be_trusted(noisy):
     """0.1 % noise on the Table 1 loop: the cost rises by the 3.84 of the linear analysis
-    at both ends of every interval (within 30 %); 30 % noise: the intervals reach far
-    into a region where it does not (c runs into its bound), and the report says so (an
-    exact fit's round-off is not checked)."""
+    at both ends of every interval (within 30 %); 30 % noise: c ends on its bound and k's
+    interval, along the path with c held there, reaches where the cost rises twice as
+    fast as the linear analysis says: the report says so (an exact fit's round-off is not
+    checked). (Checked along the unconstrained path, a was flagged too — by stepping c out
+    of its box: test_linearity_is_checked_along_the_constrained_path_at_a_bound.)"""
     problem, _ = noisy
     fit = jh.solve(problem, jh.TABLE1_TRUE)
     assert fit.report.nonlinear() == ()
@@ -160,6 +162,29 @@ def test_the_report_says_where_its_linear_intervals_are_not_to_be_trusted(noisy)
                                  jh.TABLE1_BOUNDS, fixed=FIXED).data
     loud = eqx.tree_at(lambda q: q.data, problem, truth + 300 * (problem.data - truth))
     rough = jh.solve(loud, jh.TABLE1_TRUE)
-    assert {"a", "k"} <= set(rough.report.nonlinear()) and "NOT LINEAR" in str(rough.report)
+    assert "c" in rough.at_bound
+    assert "k" in rough.report.nonlinear() and "NOT LINEAR" in str(rough.report)
     exact = jh.solve(eqx.tree_at(lambda q: q.data, problem, truth), jh.TABLE1_TRUE)
     assert exact.report.linearity == {} and "NOT LINEAR" not in str(exact.report)
+
+
+def test_linearity_is_checked_along_the_constrained_path_at_a_bound(noisy):
+    """A fit that ends with c on its bound (the box's upper c = 0.15, below the 0.18 the
+    data were made with), seven parameters free, intervals that the box cuts: the check
+    follows the path the bound-aware intervals follow (c held on its bound, each end where
+    the path leaves the box if it leaves it first), so a cost that is quadratic there
+    is not called NOT LINEAR. (It used to step off that path: every interval was
+    flagged, by factors up to 1e5.)"""
+    problem, sd = noisy
+    upper = eqx.tree_at(lambda p: p.c, jh.TABLE1_BOUNDS.upper, 0.15)
+    bounds = jh.Bounds(jh.TABLE1_BOUNDS.lower, upper)
+    fixed = {n: float(getattr(jh.TABLE1_TRUE, n)) for n in ("Ms", "lambda_s", "Mz")}
+    free7 = jh.Problem(problem.data, problem.drive, jh.ACTUATOR1,
+                       jh.ParameterSpace(bounds, fixed), sigma=sd)
+    start = jh.Parameters(**{**jh.TABLE1_TRUE.to_dict(), "c": 0.14})
+    fit = jh.solve(free7, start)
+    assert "c" in fit.at_bound, fit
+    rep = fit.report
+    assert rep.linearity and "c" not in rep.linearity
+    assert rep.nonlinear() == (), rep.linearity
+    assert all(0.5 < r < 2.0 for ends in rep.linearity.values() for r in ends), rep.linearity

@@ -171,7 +171,7 @@ def _linearity(problem, rep, e, sigma) -> dict:
     the cost is quadratic there; far from 1 the interval is not to be trusted
     (`IdentifiabilityReport.nonlinear`)."""
     names = rep.names
-    C = rep.cov_log
+    C = _held_at_bounds(np.asarray(rep.cov_log), [names.index(n) for n in rep.at_bound or {}])
     directions, labels = [], []
     for i, name in enumerate(names):
         if rep.intervals.get(name) is None or name in (rep.at_bound or {}) or not C[i, i] > 0:
@@ -188,13 +188,44 @@ def _linearity(problem, rep, e, sigma) -> dict:
         return {}
     D = np.array(directions)
     lo, hi = np.asarray(rep.bounds[0]), np.asarray(rep.bounds[1])
-    points = [np.clip(rep.values + s * Z95 * d * rep.scale, lo, hi) for d in D for s in (-1, 1)]
+    # each end of the path, or where the path leaves the box if it does so first (the
+    # interval's end is then the box's): the linear model's Δχ² there is (fraction·1.96)²
+    x0 = np.asarray(rep.values, dtype=float)
+    points, fractions = [], []
+    for d in D:
+        for s in (-1, 1):
+            step = s * Z95 * d * np.asarray(rep.scale)
+            room = np.where(step > 0, hi - x0, np.where(step < 0, lo - x0, np.inf))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                limit = np.where(step != 0, room / step, np.inf)
+            frac = float(np.clip(np.min(limit), 0.0, 1.0))
+            points.append(np.clip(x0 + frac * step, lo, hi))
+            fractions.append(frac)
     whitening = np.repeat(np.asarray(sigma), [g.size for g in problem.groups])
     r = np.asarray(_residuals_at(problem, jnp.asarray(np.array(points))))
     chi2 = np.sum((r / whitening) ** 2, axis=1) + _prior_chi2(problem, np.array(points))
     base = float(np.sum(e**2))  # (data and prior rows, as chi2)
-    delta = (chi2 - base).reshape(len(labels), 2) / Z95**2
+    expected = (np.array(fractions) * Z95) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # a path that starts on the box's face has no room to test: 1 (nothing to say)
+        ratio = np.where(expected > 1e-6 * Z95**2, (chi2 - base) / expected, 1.0)
+    delta = ratio.reshape(len(labels), 2)
     return {label: (float(d[0]), float(d[1])) for label, d in zip(labels, delta, strict=True)}
+
+
+def _held_at_bounds(C, held) -> np.ndarray:
+    """The covariance ``C`` (n × n) conditional on the parameters ``held`` (indices: those
+    on a bound) staying where they are: C_AA − C_AB·C_BB⁺·C_BA on the others, zero rows and
+    columns for the held ones. Its columns are the linearised profile paths with the
+    active bounds as constraints — the paths the bound-aware intervals follow."""
+    if not held:
+        return C
+    free = [i for i in range(C.shape[0]) if i not in held]
+    A, B = np.ix_(free, free), np.ix_(held, held)
+    AB = C[np.ix_(free, held)]
+    out = np.zeros_like(C)
+    out[A] = C[A] - AB @ np.linalg.pinv(C[B]) @ AB.T
+    return out
 
 
 def _prior_chi2(problem, points) -> np.ndarray:
