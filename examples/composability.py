@@ -14,7 +14,7 @@ import optimistix as optx
 import jaxhyst as jh
 
 actuator = jh.ACTUATOR1
-drive = jh.sinusoidal_current(100.0, 0.77, 1.53, actuator, samples_per_period=40)
+drive = jh.sinusoidal_current(100.0, 0.77, 1.53, actuator, samples_per_period=50)
 truth = jh.TABLE1_TRUE
 measured = jh.simulate(truth, actuator, drive).observed("strain")  # stand-in for a measurement
 H_obs = drive.observed(drive.H)

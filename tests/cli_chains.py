@@ -3,7 +3,7 @@ background when the test session begins (conftest.py) so that their start-up and
 compilation overlap the in-process tests; tests/test_cli_subprocess.py checks what they
 left in their directory.
 
-    python tests/cli_chains.py e2e|resume|reproduce|experiments|sharding|measured|compensate DIR
+    python tests/cli_chains.py resume|reproduce|sharding|measured|compensate|docs DIR
 """
 
 from __future__ import annotations
@@ -26,16 +26,6 @@ def run(args, out, **kw):
     with open(out, "w") as log:
         return subprocess.run(jaxhyst_cmd() + args, stdout=log, stderr=subprocess.STDOUT,
                               **kw).returncode
-
-
-def e2e(d):
-    """simulate → CSV → identify from that CSV (7 identifiable parameters) → JSON."""
-    csv = os.path.join(d, "sim.csv")
-    rc1 = run(["simulate", "--samples-per-period", "50", "--csv", csv], os.path.join(d, "sim.log"))
-    rc2 = run(["identify", csv, "--output", "y", "--fix", "Ms,lambda_s,Mz", "--params",
-               "table1", "--method", "lm", "--starts", "1", "--max-steps", "150",
-               "--out", os.path.join(d, "result.json")], os.path.join(d, "identify.log"))
-    return {"simulate": rc1, "identify": rc2}
 
 
 def resume(d):
@@ -138,9 +128,9 @@ def _sharded_loops():
 
 
 def reproduce(d):
-    """reproduce table1 --quick; then again, interrupted (SIGINT) once its first run is
-    done: it must exit 130 with files that say they are partial."""
-    rc = run(["reproduce", "table1", "--quick", "--out", d], os.path.join(d, "reproduce.log"))
+    """reproduce table1 --quick, interrupted (SIGINT) once its first run is done: it must
+    exit 130 with files that say they are partial. (The whole quick run is the docs
+    chain's.)"""
     part = os.path.join(d, "partial")
     log_path = os.path.join(d, "partial.log")
     with open(log_path, "w") as log:
@@ -154,7 +144,7 @@ def reproduce(d):
                     break
             time.sleep(0.1)
         partial_rc = proc.wait(timeout=600)
-    return {"reproduce": rc, "partial": partial_rc}
+    return {"partial": partial_rc}
 
 
 def measured(d):
@@ -225,14 +215,29 @@ def compensate(d):
     return out
 
 
-def experiments(d):
-    """The paper's experiments, quick: Table 3 (five frequencies, Figs 7 and 8) and
-    Table 2 (three runs)."""
-    t3, t2 = os.path.join(d, "table3"), os.path.join(d, "table2")
-    rc3 = run(["reproduce", "table3", "--quick", "--out", t3, "--png"],
-              os.path.join(d, "table3.log"))
-    rc2 = run(["reproduce", "table2", "--quick", "--out", t2], os.path.join(d, "table2.log"))
-    return {"table3": rc3, "table2": rc2}
+def docs(d):
+    """The documentation: everything docs/generate.py runs (the examples, the pages'
+    commands — among them the getting-started commands and the quick Table 1, 2 and 3
+    studies, which the command-line tests check here — and the accuracy table), then
+    ``mkdocs build --strict`` from what it generated."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    gen = os.path.join(d, "gen")
+    with open(os.path.join(d, "generate.log"), "w") as log:
+        rc = subprocess.run([sys.executable, os.path.join(root, "docs", "generate.py"), gen],
+                            cwd=root, stdout=log, stderr=subprocess.STDOUT).returncode
+    status = {"generate": rc}
+    try:
+        import mkdocs  # noqa: F401
+    except ImportError:
+        return status  # (the docs tests skip where mkdocs is not installed)
+    exe = shutil.which("mkdocs")
+    cmd = [exe] if exe else [sys.executable, "-m", "mkdocs"]
+    env = dict(os.environ, JAXHYST_DOCS_GENERATED=gen, NO_MKDOCS_2_WARNING="1")
+    with open(os.path.join(d, "build.log"), "w") as log:
+        status["build"] = subprocess.run(cmd + ["build", "--strict", "-d",
+                                                os.path.join(d, "site")], cwd=root, env=env,
+                                         stdout=log, stderr=subprocess.STDOUT).returncode
+    return status
 
 
 if __name__ == "__main__":

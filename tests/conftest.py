@@ -20,21 +20,24 @@ jaxhyst.enable_compilation_cache()
 CLI_CHAINS: dict = {}
 
 
+#: The test modules that check the chains' results.
+CHAIN_MODULES = ("test_cli_subprocess", "test_docs_site")
+
+
 def pytest_collection_modifyitems(session, config, items):
     """Check the background chains last, so that they run alongside everything else."""
-    items.sort(key=lambda item: item.module.__name__ == "test_cli_subprocess")
+    items.sort(key=lambda item: item.module.__name__ in CHAIN_MODULES)
 
 
 def pytest_collection_finish(session):
     """Start the subprocess CLI chains as soon as the tests that check them are selected,
     so that they run alongside the in-process tests instead of after them."""
-    if not any(item.module.__name__ == "test_cli_subprocess" for item in session.items):
+    if not any(item.module.__name__ in CHAIN_MODULES for item in session.items):
         return
     root = tempfile.mkdtemp(prefix="jaxhyst-cli-")
     script = os.path.join(os.path.dirname(__file__), "cli_chains.py")
     nice = ["nice", "-n", "10"] if shutil.which("nice") else []
-    for chain in ("reproduce", "experiments", "sharding", "e2e", "resume", "measured",
-                  "compensate"):
+    for chain in ("docs", "reproduce", "sharding", "resume", "measured", "compensate"):
         d = os.path.join(root, chain)
         os.makedirs(d)
         # niced (the `nice` command: a preexec_fn would fork the multithreaded JAX

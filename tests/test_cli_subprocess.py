@@ -31,14 +31,31 @@ def _log(d, name):
         return fh.read()
 
 
+def docs_step(step):
+    """(directory, status) of one step of docs/generate.py as the docs chain ran it: the
+    pages' own commands, run once for the pages and checked here."""
+    d, status = _finished("docs")
+    if status["generate"] != 0 and not os.path.exists(
+            os.path.join(d, "gen", "generated", step, "status.json")):
+        pytest.fail(_log(d, "generate.log"))
+    step_dir = os.path.join(d, "gen", "generated", step)
+    with open(os.path.join(step_dir, "status.json")) as fh:
+        return step_dir, json.load(fh)
+
+
+def _output(d, label):
+    """What a command of a docs step printed: stdout, then stderr."""
+    return _log(d, f"{label}.log") + _log(d, f"{label}.err")
+
+
 def test_simulate_csv_identify_json_recovers_the_parameters():
-    """The README's own commands (simulate at 50 samples per period, identify the CSV):
-    they work and print no warning (the estimated error is 5e-6, inside 1e-5)."""
-    d, status = _finished("e2e")
-    assert status["simulate"] == 0, _log(d, "sim.log")
-    assert status["identify"] == 0, _log(d, "identify.log")
-    for log in ("sim.log", "identify.log"):
-        assert "warning" not in _log(d, log), _log(d, log)
+    """The README's and the getting-started page's own commands (simulate at 50 samples
+    per period, identify the CSV, report): they work and print no warning (the estimated
+    error is 5e-6, inside 1e-5)."""
+    d, status = docs_step("getting_started")
+    for label in ("simulate", "identify", "report"):
+        assert status[label] == 0, _output(d, label)
+        assert "warning" not in _output(d, label).lower(), _output(d, label)
     with open(os.path.join(d, "result.json")) as fh:
         res = json.load(fh)
     truth = jh.TABLE1_TRUE.to_dict()
@@ -50,6 +67,8 @@ def test_simulate_csv_identify_json_recovers_the_parameters():
     assert res["params"]["E"]["unit"] == "N/m^2"
     assert res["identifiability"]["rank"] == 7
     assert res["problem"]["output"] == "y"
+    for fig in ("fit.png", "report.png"):
+        assert os.path.getsize(os.path.join(d, fig)) > 10_000
 
 
 def test_identify_killed_midway_resumes_from_its_checkpoint():
@@ -69,16 +88,20 @@ def test_identify_killed_midway_resumes_from_its_checkpoint():
 
 
 def test_reproduce_table1_quick_runs():
-    d, status = _finished("reproduce")
-    assert status["reproduce"] == 0, _log(d, "reproduce.log")
-    assert "warning" not in _log(d, "reproduce.log")  # (a README command)
-    with open(os.path.join(d, "table1.json")) as fh:
+    d, status = docs_step("reproduce")
+    assert status["table1"] == 0, _output(d, "table1")
+    assert "warning" not in _output(d, "table1").lower()  # (a README command)
+    with open(os.path.join(d, "table1", "table1.json")) as fh:
         study = json.load(fh)
     assert [r["method"] for r in study["runs"]] == ["GATR1", "GALM1", "GATR2", "GALM2"]
     for r in study["runs"]:
         assert r["cost"] < 1e-12 and r["combination_error"] < 1e-4, r["method"]
-    assert "| Ms |" in open(os.path.join(d, "table1.md")).read()
-    print(f"reproduce table1 --quick: {status['seconds']:.0f} s")
+    assert "| Ms |" in open(os.path.join(d, "table1", "table1.md")).read()
+    print(f"reproduce table1 --quick: {status['table1_seconds']:.0f} s")
+
+
+def test_reproduce_interrupted_leaves_partial_files():
+    d, status = _finished("reproduce")
     # interrupted after its first run: exit 130, and every file says it is partial
     assert status["partial"] == 130, _log(d, "partial.log")
     with open(os.path.join(d, "partial", "table1.json")) as fh:
@@ -134,9 +157,9 @@ def _check_experiment(study, outcomes=("successful",)):
 
 
 def test_reproduce_table3_and_table2_quick():
-    d, status = _finished("experiments")
-    assert status["table3"] == 0, _log(d, "table3.log")
-    assert status["table2"] == 0, _log(d, "table2.log")
+    d, status = docs_step("reproduce")
+    assert status["table3"] == 0, _output(d, "table3")
+    assert status["table2"] == 0, _output(d, "table2")
     with open(os.path.join(d, "table3", "table3.json")) as fh:
         t3 = json.load(fh)
     assert [r["frequency_hz"] for r in t3["runs"]] == [10, 800, 1000, 1250, 2000]
@@ -156,7 +179,8 @@ def test_reproduce_table3_and_table2_quick():
     # at 2 Hz the runs agree on a, k, c but cannot determine Cz/Mz
     assert {"run 0 k", "run 1 k", "run 2 k"} <= {r for r, *_ in rows}
     assert not any(r.endswith("Cz/Mz") for r, *_ in rows)
-    print(f"reproduce table3 + table2 --quick: {status['seconds']:.0f} s")
+    print(f"reproduce table3 + table2 --quick: "
+          f"{status['table3_seconds'] + status['table2_seconds']:.0f} s")
 
 
 def test_measured_loop_default_command_bounds_stops_and_start():

@@ -116,7 +116,9 @@ def _finished(result: IdentificationResult, how: str) -> IdentificationResult:
 def solve(problem: AbstractProblem, start, solver="lm", max_steps: int = 200,
           rtol: float = 1e-10, atol: float = 1e-12,
           progress=False) -> IdentificationResult:
-    """Run one local solver from ``start`` (parameters, or box coordinates u).
+    """Run one local solver from ``start``: `Parameters` (SI; the problem's fixed values
+    are kept), a dict {name: SI value}, or box coordinates u, float64 of shape (n,) in
+    [0, 1] (n = ``problem.space.n_free``).
 
     ``solver``: a name of `jaxhyst.identify.SOLVERS` (with termination tolerances
     ``rtol``/``atol``) or any Optimistix least-squares solver or minimiser object.
