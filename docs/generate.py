@@ -1,6 +1,7 @@
-"""Every figure and measured number on the documentation site, produced by running the
-code: the examples, the commands the pages show, the paper's quick studies and the
-accuracy table.
+"""Every figure and measured number on the documentation site that a short run can make,
+produced by running the code: the examples, the commands the pages show, the paper's
+quick studies, the Fig. 8 phases, the accuracy and sampling tables and the parameter
+table. (The slow benchmarks' numbers are included from their own output files.)
 
     python docs/generate.py OUTDIR [STEP ...]
 
