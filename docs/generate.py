@@ -272,7 +272,8 @@ def main(argv: list[str]) -> int:
         write_accuracy(argv[1])
         return 0
     if not argv or argv[0].startswith("-"):
-        print(__doc__.strip().splitlines()[3].strip(), file=sys.stderr)
+        usage = next(line for line in __doc__.splitlines() if "docs/generate.py OUTDIR" in line)
+        print(f"usage: {usage.strip()}", file=sys.stderr)
         return 2
     out, names = Path(argv[0]), argv[1:] or list(STEPS)
     unknown = [n for n in names if n not in STEPS]
