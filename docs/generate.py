@@ -258,18 +258,14 @@ def write_parameters(path: str) -> None:
     Path(path).write_text("\n".join(rows) + "\n")
 
 
+#: The computed fragments, each written by ``generate.py --NAME PATH`` (a step runs it).
+FRAGMENTS = {"--parameters": write_parameters, "--sampling": write_sampling,
+             "--phases": write_phases, "--accuracy": write_accuracy}
+
+
 def main(argv: list[str]) -> int:
-    if argv[:1] == ["--parameters"]:
-        write_parameters(argv[1])
-        return 0
-    if argv[:1] == ["--sampling"]:
-        write_sampling(argv[1])
-        return 0
-    if argv[:1] == ["--phases"]:
-        write_phases(argv[1])
-        return 0
-    if argv[:1] == ["--accuracy"]:
-        write_accuracy(argv[1])
+    if argv[:1] and argv[0] in FRAGMENTS:
+        FRAGMENTS[argv[0]](argv[1])
         return 0
     if not argv or argv[0].startswith("-"):
         usage = next(line for line in __doc__.splitlines() if "docs/generate.py OUTDIR" in line)

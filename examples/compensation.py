@@ -16,6 +16,7 @@ import numpy as np
 
 import jaxhyst as jh
 from jaxhyst.control import IterativeLearning
+from jaxhyst.control.compensate import rms_error
 from jaxhyst.control.tracking import Tracking, evaluate, settling_periods
 from jaxhyst.plots import plot_compensation
 
@@ -37,14 +38,10 @@ state = learner.init()  # the model's compensating current
 measure = measure.with_run_in(settling_periods(measure, state.input)[0])
 
 
-def rms_percent(y):
-    return 100 * float(np.sqrt(np.mean((y - reference.displacement) ** 2))) / reference.scale
-
-
 errors = []
 for _ in range(8):
     y = np.asarray(evaluate(measure, state.input))  # apply the current, measure y
-    errors.append(rms_percent(y))
+    errors.append(100 * rms_error(y, reference.displacement, reference.scale))  # %
     print(f"iteration {state.iteration}: rms tracking error {errors[-1]:.3g} % of the "
           f"peak-to-peak; current in [{state.input.min():.3f}, {state.input.max():.3f}] A")
     state = learner.step(state, y)

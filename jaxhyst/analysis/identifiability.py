@@ -41,7 +41,7 @@ import numpy as np
 
 from ..identify.result import bound_status
 from ..params import NAMES
-from .intervals import bound_aware_intervals, box_in_x, x_side
+from .intervals import bound_aware_intervals, box_in_x, held_at_bounds, x_side
 from .nullspace import MAX_EXPONENT, PREFER_FIX, analyse
 from .report import Z95, IdentifiabilityReport, _unit
 
@@ -171,7 +171,7 @@ def _linearity(problem, rep, e, sigma) -> dict:
     the cost is quadratic there; far from 1 the interval is not to be trusted
     (`IdentifiabilityReport.nonlinear`)."""
     names = rep.names
-    C = _held_at_bounds(np.asarray(rep.cov_log), [names.index(n) for n in rep.at_bound or {}])
+    C = held_at_bounds(np.asarray(rep.cov_log), [names.index(n) for n in rep.at_bound or {}])
     directions, labels = [], []
     for i, name in enumerate(names):
         if rep.intervals.get(name) is None or name in (rep.at_bound or {}) or not C[i, i] > 0:
@@ -211,21 +211,6 @@ def _linearity(problem, rep, e, sigma) -> dict:
         ratio = np.where(expected > 1e-6 * Z95**2, (chi2 - base) / expected, 1.0)
     delta = ratio.reshape(len(labels), 2)
     return {label: (float(d[0]), float(d[1])) for label, d in zip(labels, delta, strict=True)}
-
-
-def _held_at_bounds(C, held) -> np.ndarray:
-    """The covariance ``C`` (n × n) conditional on the parameters ``held`` (indices: those
-    on a bound) staying where they are: C_AA − C_AB·C_BB⁺·C_BA on the others, zero rows and
-    columns for the held ones. Its columns are the linearised profile paths with the
-    active bounds as constraints — the paths the bound-aware intervals follow."""
-    if not held:
-        return C
-    free = [i for i in range(C.shape[0]) if i not in held]
-    A, B = np.ix_(free, free), np.ix_(held, held)
-    AB = C[np.ix_(free, held)]
-    out = np.zeros_like(C)
-    out[A] = C[A] - AB @ np.linalg.pinv(C[B]) @ AB.T
-    return out
 
 
 def _prior_chi2(problem, points) -> np.ndarray:

@@ -114,6 +114,21 @@ def _profile(v, i, x_tilde, C, bound_idx, bound_x, side):
     return best
 
 
+def held_at_bounds(C, held) -> np.ndarray:
+    """The covariance ``C`` (n × n) conditional on the parameters ``held`` (indices: those
+    on a bound) staying where they are: C_AA − C_AB·C_BB⁺·C_BA on the others, zero rows and
+    columns for the held ones. Its columns are the linearised profile paths with the
+    active bounds as constraints — the paths the bound-aware intervals follow."""
+    if not held:
+        return C
+    free = [i for i in range(C.shape[0]) if i not in held]
+    A, B = np.ix_(free, free), np.ix_(held, held)
+    AB = C[np.ix_(free, held)]
+    out = np.zeros_like(C)
+    out[A] = C[A] - AB @ np.linalg.pinv(C[B]) @ AB.T
+    return out
+
+
 def bound_aware_intervals(J, e, box_x, at_bound: dict[int, str], identifiable,
                           z: float = Z95):
     """95 % intervals in the relative coordinates x (see the module docstring).
