@@ -128,6 +128,8 @@ def derivative_table(spp, repeats):
 
     s = setup(spp)
     mag, jh = s["mag"], s["jh"]
+    from jaxhyst.model import timeloop
+
     f = jax.jit(s["loss"])
     g = jax.jit(jax.grad(s["loss"]))
     gH = jax.jit(jax.grad(s["loss_H"]))
@@ -144,11 +146,7 @@ def derivative_table(spp, repeats):
     for fn in ours.values():  # compile with the derivative rule in place
         fn()
     # plain JAX AD of the same time loop, without the custom rule
-    plain_path = mag.magnetization_path
-    mag.magnetization_path = lambda p, H, *, variant, substeps: mag._time_loop(
-        variant, p, H, substeps, batched=False)
-    sim_mod = sys.modules["jaxhyst.model.simulate"]  # (jaxhyst.model.simulate is a function)
-    sim_mod.magnetization_path = mag.magnetization_path
+    mag.run_path = timeloop.run_path_plain  # (the JA path's loop without its rule)
     try:
         s2 = setup(spp)
         f2 = jax.jit(s2["loss"])
@@ -165,8 +163,7 @@ def derivative_table(spp, repeats):
             fn()
         agree = float(jnp.max(jnp.abs(g(z0) - g2(z0))) / jnp.max(jnp.abs(g2(z0))))
     finally:
-        mag.magnetization_path = plain_path
-        sim_mod.magnetization_path = plain_path
+        mag.run_path = timeloop.run_path
     timed = interleaved_ms({**{("ours", k): v for k, v in ours.items()},
                             **{("plain", k): v for k, v in plain.items()}}, repeats)
     rows = {k: timed["ours", k] for k in ours}

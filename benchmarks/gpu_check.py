@@ -45,15 +45,14 @@ def main():
     def one(x):
         return simulate_unchecked(jh.Parameters.from_array(x), jh.ACTUATOR1, drive).y
 
-    from jaxhyst.model import interval, magnetization
+    from jaxhyst.model import interval, timeloop
 
     print("\n| time loop | P | jit(vmap) ns/indiv·sample | simulate_batch ns/indiv·sample "
           "| first call (s) |\n|---|---|---|---|---|", flush=True)
     for free in (False, None):  # the CPU's branching loop, then the accelerator's own
         interval.FORCE_BRANCH_FREE = free
         jax.clear_caches()
-        magnetization._SCANS.clear()
-        magnetization._SENSITIVITY.clear()
+        timeloop.clear_traces()
         batched = jax.jit(jax.vmap(one))
         label = "branching" if free is False else "branch-free"
         for P in (1_000, 10_000, 100_000):

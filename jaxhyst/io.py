@@ -366,15 +366,16 @@ def bounds_from_json(obj: dict) -> Bounds:
     return Bounds.from_dict(pairs)
 
 
-def bounds_changes_from_json(obj: dict, what: str = "bounds") -> dict:
+def bounds_changes_from_json(obj: dict, what: str = "bounds", extra=()) -> dict:
     """``{name: (lower, upper)}`` (SI) for the parameters a bounds file names (any subset
-    of the ten: the others keep their default box)."""
+    of the ten and of the ``extra`` names: the others keep their default box)."""
     if not isinstance(obj, dict) or not obj:
         raise DataError(f"{what}: expected an object {{name: [lower, upper]}} naming at least "
                         "one parameter.")
-    unknown = [n for n in obj if n not in NAMES]
+    names = (*NAMES, *extra)
+    unknown = [n for n in obj if n not in names]
     if unknown:
-        raise DataError(f"{what}: unknown parameters {unknown}; the names are {list(NAMES)}.")
+        raise DataError(f"{what}: unknown parameters {unknown}; the names are {list(names)}.")
     out = {}
     for n, pair in obj.items():
         try:

@@ -8,9 +8,17 @@ SOLVER_NAMES = ("lm", "indirect_lm", "dogleg", "lma", "tra", "bfgs")
 #: The paper's hybrid GAs and the plain GA (`jaxhyst.identify.HYBRIDS`).
 HYBRID_NAMES = ("GATR1", "GALM1", "GATR2", "GALM2", "GA")
 
-#: Jiles–Atherton forms: command-line name → class name in `jaxhyst`.
+#: The loss coefficients of the rate-dependent model (`jaxhyst.Losses`), and the
+#: parameters the built-in forms of pinning cells have of their own: the names beyond the
+#: ten that a box, --fix or --vary may give.
+LOSS_PARAMETER_NAMES = ("eddy", "excess")
+FORM_PARAMETER_NAMES = ("spread", "a_rev")
+
+#: Model forms: command-line name → class name in `jaxhyst` (the Jiles–Atherton variants,
+#: then the forms of pinning cells, which have return-point memory).
 VARIANT_CLASSES = {"energy": "EnergyBasedJA", "classic": "ClassicJA",
-                   "venkataraman": "VenkataramanJA", "pop": "PopJA"}
+                   "venkataraman": "VenkataramanJA", "pop": "PopJA",
+                   "play": "PlayJA", "preisach": "PreisachJA"}
 
 #: RK4 substeps per sample everywhere (simulate, problems, the command line): the setting
 #: whose accuracy docs/theory.md documents.

@@ -34,6 +34,7 @@ from .model.jiles_atherton import (
     VenkataramanJA,
 )
 from .model.losses import Losses
+from .model.play import AbstractPlayForm, PlayJA, PreisachJA
 from .model.simulate import Simulation, simulate, simulate_unchecked
 from .names import DEFAULT_SUBSTEPS
 from .params import NAMES, UNITS, Parameters
@@ -41,7 +42,8 @@ from .params import NAMES, UNITS, Parameters
 FORMAT = "jaxhyst-model"
 VERSION = 1
 #: The built-in forms a file can name.
-FORMS = {cls.__name__: cls for cls in (EnergyBasedJA, ClassicJA, VenkataramanJA, PopJA)}
+FORMS = {cls.__name__: cls for cls in (EnergyBasedJA, ClassicJA, VenkataramanJA, PopJA,
+                                       PlayJA, PreisachJA)}
 
 
 class ModelFileError(ValueError):
@@ -54,14 +56,16 @@ class Model(eqx.Module):
     - ``params``: `Parameters` (leaves of shape () — or (L,) for one set per loop of a
       joint fit);
     - ``actuator``: the `Actuator` (geometry, turns per metre, bias);
-    - ``variant``: the Jiles–Atherton form; ``substeps``: RK4 substeps per sample;
+    - ``variant``: the model form (a Jiles–Atherton variant, or a form of pinning cells
+      such as `jaxhyst.PlayJA`, whose own parameters it carries); ``substeps``: RK4
+      substeps per sample;
     - ``losses``: `jaxhyst.Losses` of the rate-dependent model, or None (rate
       independent).
     """
 
     params: Parameters
     actuator: Actuator
-    variant: AbstractJAVariant = EnergyBasedJA()
+    variant: eqx.Module = EnergyBasedJA()
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
     losses: Losses | None = None
 
@@ -98,11 +102,18 @@ def save_model(path: str | os.PathLike, model: Model, **meta) -> None:
               "actuator": {"name": str(model.actuator.name),
                            "has_turns": model.actuator.n is not None},
               "has_losses": model.losses is not None,
+              "form_settings": _form_settings(model.variant),
               "versions": _versions(), "meta": meta}
     buf = io.BytesIO()
     buf.write(json.dumps(header).encode("utf-8") + b"\n")
     eqx.tree_serialise_leaves(buf, model)
     write_bytes(path, buf.getvalue())
+
+
+def _form_settings(form) -> dict:
+    """The static settings a form is rebuilt with (the number of cells of a form of
+    pinning cells)."""
+    return {"cells": form.cells} if isinstance(form, AbstractPlayForm) else {}
 
 
 def read_header(path: str | os.PathLike) -> dict:
@@ -134,15 +145,19 @@ def load_model(path: str | os.PathLike, variant: AbstractJAVariant | None = None
         if name not in FORMS:
             raise ModelFileError(f"{path} was saved with the form {name}, which is not built "
                                  f"in; pass variant={name}(…) to load_model.")
-        variant = FORMS[name]()
+        variant = FORMS[name](**header.get("form_settings", {}))
     elif type(variant).__name__ != name:
         raise ModelFileError(f"{path} was saved with the form {name}; variant= is a "
                              f"{type(variant).__name__}.")
     shape = tuple(header["parameter_shape"])
     params = Parameters(*[jnp.zeros(shape) for _ in NAMES])
+    if isinstance(variant, AbstractPlayForm):  # (its own parameters: one per set)
+        own = list(variant.own_parameters)
+        variant = eqx.tree_at(lambda f: [getattr(f, n) for n in own], variant,
+                              [jnp.zeros(shape) for _ in own])
     act = header["actuator"]
     actuator = Actuator(1.0, 1.0, 1.0 if act["has_turns"] else None, 0.0, name=act["name"])
-    losses = Losses() if header.get("has_losses") else None
+    losses = Losses(jnp.zeros(shape), jnp.zeros(shape)) if header.get("has_losses") else None
     like = Model(params, actuator, variant, int(header["substeps"]), losses)
     with open(os.fspath(path), "rb") as fh:
         fh.readline()

@@ -222,3 +222,33 @@ def reference_dynamic(params: jh.Parameters, t, H, variant="energy", k_e=0.0, k_
         state = sol.y[:, -1]
         out[i + 1] = state
     return out[:, 0], out[:, 1]
+
+
+def reference_play(params: jh.Parameters, spread: float, cells: int, H, a_rev=None):
+    """M (A/m) at the samples of the field H (A/m) for a form of pinning cells, written
+    from its equations independently of jaxhyst: N play operators of widths
+    k·exp(s·z_i) (z_i the normal quantiles at (i − ½)/N, from SciPy) on He = H + α̃·M,
+    M = Ms·[c·L(He/a_r) + (1 − c)·mean L(h_i/a)] (a_r = ``a_rev``, or a), the implicit M
+    of each sample found by Brent's method to 1e-13 of Ms."""
+    from scipy.optimize import brentq
+    from scipy.stats import norm
+
+    p = {n: float(getattr(params, n)) for n in ("Ms", "a", "k", "alpha", "c")}
+    a_r = p["a"] if a_rev is None else float(a_rev)
+    chi = p["k"] * np.exp(spread * norm.ppf((np.arange(cells) + 0.5) / cells))
+    h = np.zeros(cells)
+
+    def state(He):
+        cells_h = np.clip(h, He - chi, He + chi)
+        M = p["Ms"] * (p["c"] * np_langevin(He / a_r)[0]
+                       + (1 - p["c"]) * np.mean([np_langevin(x / p["a"])[0]
+                                                 for x in cells_h]))
+        return M, cells_h
+
+    out = [0.0]
+    for Hn in np.asarray(H, float)[1:]:
+        g = lambda M, Hn=Hn: M - state(Hn + p["alpha"] * M)[0]  # noqa: E731
+        M = brentq(g, -p["Ms"], p["Ms"], xtol=1e-13 * p["Ms"], rtol=1e-15)
+        _, h = state(Hn + p["alpha"] * M)
+        out.append(M)
+    return np.asarray(out)

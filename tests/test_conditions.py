@@ -171,17 +171,19 @@ def test_predict_reproduces_the_fit_and_leave_one_out_reports_each_loop(tmp_path
     printed = json.loads(capsys.readouterr().out)
     saved = json.loads(out.read_text())
     assert set(saved["coefficients"]) >= {"k", "k:log_f", "a", "alpha", "c"}
-    held = saved["leave_one_out"]
+    held = saved["leave_one_out"]["forms"]["classic"]["rows"]
+    assert saved["leave_one_out"]["kept"] == "classic"
     assert [r["loop"] for r in held] == [0, 1, 2] == [r["loop"] for r in printed[
-        "leave_one_out"]]
+        "leave_one_out"]["forms"]["classic"]["rows"]]
     for r in held:
         assert np.isfinite(r["rms"]) and r["rms"] > 0 and r["data_scale"] > 0
+        assert r["own_rms"] > 0 and r["nearest_rms"] > 0 and "outside" in r
 
     # predict from the result file: exactly the fit's own prediction of each loop
     pred_csv = tmp_path / "pred.csv"
     assert main(["predict", str(out), "--out", str(pred_csv), "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)["loops"]
-    from jaxhyst.cli.spec import load_result
+    from jaxhyst.cli.problems import load_result
 
     _, _, problem, coef = load_result(out)
     want = np.asarray(problem.records.predict_loops(problem.per_record(coef)))

@@ -290,15 +290,14 @@ def test_the_branch_free_path_of_an_accelerator_gives_the_same_values():
     derivatives as the branching loop (a drive of a length no other test traces)."""
     import jax
 
-    from jaxhyst.model import interval, magnetization
+    from jaxhyst.model import interval, timeloop
 
     drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=77)
     x = jh.TABLE1_TRUE.to_array()
 
     def run():
         jax.clear_caches()  # (and the time loops' own traces)
-        magnetization._SCANS.clear()
-        magnetization._SENSITIVITY.clear()
+        timeloop.clear_traces()
 
         def f(x):
             return jh.simulate_unchecked(jh.Parameters.from_array(x), jh.ACTUATOR1, drive).y

@@ -11,6 +11,7 @@ import pytest
 
 import jaxhyst as jh
 from jaxhyst.model import magnetization as mag
+from jaxhyst.model import timeloop
 from jaxhyst.model.simulate import simulate_unchecked
 
 SPP = 50  # coarse drives keep the compilations short
@@ -246,7 +247,9 @@ def test_grad_through_the_drive_builder_and_the_geometry_matches_differences(nam
 
 def _plain_path(p, H, variant, substeps):
     """The time loop differentiated by plain JAX AD (no custom rule): the reference."""
-    return mag._time_loop(variant, p, H, substeps, batched=False)
+    form = mag.JAPath(variant)
+    out = timeloop.run_path_plain(p, None, H, form=form, substeps=substeps)
+    return form.split(out, p, H, substeps)
 
 
 @pytest.mark.compat
@@ -420,17 +423,17 @@ def test_a_local_solve_traces_each_time_loop_once(monkeypatch):
     # are each traced once; a drive length no other test uses keeps the count fresh. (The
     # sampling check of a coarse drive runs the loop at twice the substeps: another loop.)
     calls = []
-    for name, at in (("_time_loop", 3), ("_sensitivity_loop", 5)):
-        original = getattr(mag, name)
+    for name, at in (("_loop", 4), ("_sensitivity_loop", 4)):
+        original = getattr(timeloop, name)
 
         def counted(*args, _original=original, _name=name, _at=at, **kwargs):
             if args[_at] == 2:  # the problem's substeps
                 calls.append(_name)
             return _original(*args, **kwargs)
 
-        monkeypatch.setattr(mag, name, counted)
+        monkeypatch.setattr(timeloop, name, counted)
     drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=37)
     problem = jh.synthetic_problem(jh.TABLE1_TRUE, drive, jh.ACTUATOR1, jh.TABLE1_BOUNDS,
                                    fixed=["Ms", "lambda_s", "alpha", "E", "Kz", "Mz", "Cz"])
     jh.solve(problem, np.full(3, 0.5), solver="lm", max_steps=3, report=False)
-    assert sorted(calls) == ["_sensitivity_loop", "_time_loop"]
+    assert sorted(calls) == ["_loop", "_sensitivity_loop"]

@@ -9,8 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..model.losses import LOSS_UNITS
-from ..params import UNITS
+from ..model.paths import PARAMETER_UNITS
 
 Z95 = 1.959963984540054
 
@@ -265,6 +264,6 @@ class IdentifiabilityReport:
 
 def _unit(name: str) -> str:
     base = _base_name(name)
-    return UNITS.get(base, LOSS_UNITS.get(base, ""))
+    return PARAMETER_UNITS.get(base, "")
 
 

@@ -12,7 +12,8 @@ Only the command line installs signal handlers (`jaxhyst.cli._signals`).
 from .main import main
 from .options import VARIANTS
 from .parser import build_parser
-from .spec import CLIError, build_problem, variant_from_name
+from .problems import build_problem
+from .spec import CLIError, variant_from_name
 
 __all__ = ["CLIError", "VARIANTS", "build_parser", "build_problem", "main",
            "variant_from_name"]

@@ -1,30 +1,37 @@
-"""The fits ``jaxhyst identify`` makes: the one its options ask for (`fit_by_options`), the
-refits after it — the data-derived box widened where the fit ended on it
-(`widen_derived_box`) — and the leave-one-out folds (`leave_one_out`)."""
+"""The fits ``jaxhyst identify`` makes: the one its options ask for (`fit_by_options`) and
+the refits after it — the data-derived box widened where the fit ended on it
+(`widen_derived_box`), long loops fitted on every k-th sample first (`decimated_first`).
+The leave-one-out folds are `jaxhyst.cli.heldout`'s."""
 
 from __future__ import annotations
 
 from .options import HYBRID
-from .spec import CLIError, build_problem, note
+from .problems import build_problem
+from .spec import CLIError, note
 
 #: Widenings of the data-derived box a fit may ask for, and the factor of each.
 WIDENINGS, WIDEN = 3, 5.0
 
 
-def widen_derived_box(args, spec, given, loops, problem, result):
+def widen_derived_box(args, spec, given, loops, problem, result, quiet: bool = False):
     """A box derived from the data is no constraint of the data: where a fit ends on one
     of its bounds (not one the user gave, not a physical limit), widen that bound
     `WIDEN`-fold (within the physical range) and refit from the result with LM, up to
-    `WIDENINGS` times. Returns the last (result, problem)."""
+    `WIDENINGS` times. The loss coefficients' and a form's own parameters' boxes
+    (``spec["extra_bounds"]``) likewise. Returns the last (result, problem)."""
     import numpy as np
 
     from jaxhyst.io import bounds_from_json, bounds_to_json
     from jaxhyst.params import PHYSICAL_RULES, at_physical_limit
 
+    extra_rules = {"eddy": lambda v: v >= 0, "excess": lambda v: v >= 0,
+                   "spread": lambda v: (v >= 0) & (v <= 10),
+                   "a_rev": lambda v: (v >= 1e-6) & (v <= 1e9)}
     for _ in range(WIDENINGS):
         if result.result == "interrupted" or isinstance(result.params, dict):
             break
-        box = bounds_to_json(bounds_from_json(spec["bounds"]))
+        box = {**bounds_to_json(bounds_from_json(spec["bounds"])),
+               **{n: list(v) for n, v in (spec.get("extra_bounds") or {}).items()}}
         widened = []
         for name, (side, bound) in result.at_bound.items():
             base = name.split("[")[0]
@@ -35,7 +42,7 @@ def widen_derived_box(args, spec, given, loops, problem, result):
                 new = hi * WIDEN if lo > 0 else hi + (WIDEN - 1) * (hi - lo)
             else:
                 new = lo / WIDEN if lo > 0 else lo - (WIDEN - 1) * (hi - lo)
-            ok = PHYSICAL_RULES.get(base, (lambda v: np.isfinite(v), ""))[0]
+            ok = PHYSICAL_RULES.get(base, (extra_rules.get(base, np.isfinite), ""))[0]
             while not ok(np.float64(new)) and abs(new - bound) > 1e-12 * abs(bound):
                 new = 0.5 * (new + bound)  # (back inside the physical range)
             if abs(new - bound) <= 1e-9 * max(abs(bound), 1e-300):
@@ -44,12 +51,14 @@ def widen_derived_box(args, spec, given, loops, problem, result):
             widened.append(f"{base} {side} {bound:.4g} → {new:.4g}")
         if not widened:
             break
-        if args.progress:
+        if args.progress and not quiet:
             note("identify", "the fit ended on the data-derived box (no constraint of the "
                              "data): widening " + ", ".join(widened) + " and refitting")
-        spec["bounds"] = box
+        extra = spec.get("extra_bounds") or {}
+        spec["bounds"] = {n: v for n, v in box.items() if n not in extra}
+        spec["extra_bounds"] = {n: box[n] for n in extra}
         problem = build_problem(spec, loops)
-        result = refine_from(args, problem, result.params)
+        result = refine_from(args, problem, result.params, quiet=quiet)
     return result, problem
 
 
@@ -114,14 +123,16 @@ def fit_by_options(args, problem, method, start, quiet: bool = False):
                          progress=meter)
 
 
-def refine_from(args, problem, params, what: str = "from the previous fit"):
+def refine_from(args, problem, params, what: str = "from the previous fit",
+                quiet: bool = False):
     """One LM solve of ``problem`` from ``params`` (a fit's result)."""
     import jaxhyst as jh
     from jaxhyst.progress import TextProgressMeter
 
-    if args.progress:
+    if args.progress and not quiet:
         note("lm", f"one start {what}")
-    meter = TextProgressMeter(every=0, interval=2.0) if args.progress else False
+    meter = TextProgressMeter(every=0, interval=2.0) if args.progress and not quiet else \
+        False
     return jh.solve(problem, params, solver="lm", max_steps=args.max_steps or 200,
                     progress=meter)
 
@@ -156,48 +167,3 @@ def decimated_first(args, spec, loops, problem, method):
                          "then one solve on all of them")
     coarse = fit_by_options(args, build_problem(spec, thin), method, None)
     return refine_from(args, problem, coarse.params, "from the best on the thinned loops")
-
-
-def leave_one_out(args, spec, loops, method) -> list[dict]:
-    """Fit every loop but one (as the whole fit was made) and predict the one left out,
-    for each loop: [{loop, rms, max_abs, data_scale, rms_fitted}] (the loop's unit)."""
-
-    import warnings
-
-    from jaxhyst._interrupt import stop_requested
-    from jaxhyst.identify import ConditionWarning
-
-    from .predictions import error_summary, predict_loops
-
-    rows = []
-    for i, held in enumerate(loops):
-        if stop_requested():
-            break
-        rest = [lp for j, lp in enumerate(loops) if j != i]
-        problem = build_problem(spec, rest)
-        note("leave-one-out", f"fitting without loop {held.index} ({len(rest)} loops) …")
-        result = fit_by_options(args, problem, method, None, quiet=True)
-        with warnings.catch_warnings(record=True) as caught:  # (an extrapolation is
-            warnings.simplefilter("always", ConditionWarning)  # part of the row instead)
-            predicted, data = predict_loops(spec, problem, result.params, [held])[0]
-        beyond = [" ".join(str(w.message).split()) for w in caught
-                  if issubclass(w.category, ConditionWarning)]
-        for w in caught:
-            if not issubclass(w.category, ConditionWarning):
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        rows.append({"loop": held.index, **error_summary(predicted, data),
-                     "rms_fitted": result.rms_error, "outcome": result.result,
-                     "extrapolated": beyond})
-    return rows
-
-
-def held_out_text(rows) -> str:
-    lines = ["\n  leave one loop out: the loop predicted from the others' fit"]
-    for r in rows:
-        lines.append(f"    loop {r['loop']}: rms {r['rms']:.4g} (max {r['max_abs']:.4g}; "
-                     f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|), the others' "
-                     f"fit rms {r['rms_fitted']:.4g}"
-                     + ("; extrapolated: " + "; ".join(m.removeprefix("a prediction ")
-                                                       for m in r["extrapolated"])
-                        if r.get("extrapolated") else ""))
-    return "\n".join(lines)

@@ -8,26 +8,20 @@ from pathlib import Path
 from jaxhyst._files import writes_in_place
 from jaxhyst.names import DEFAULT_SUBSTEPS, MAGNETIC_OUTPUT_NAMES
 
-from .fitting import (
-    decimated_first,
-    fit_by_options,
-    held_out_text,
-    leave_one_out,
-    widen_derived_box,
-)
+from .fitting import decimated_first, fit_by_options, widen_derived_box
+from .heldout import CANDIDATES, check_comparison, held_out_text, leave_one_out
 from .options import COUNT, EXIT_HELP, HYBRID, LOCAL, POSITIVE_INT, UNITS_HELP, VARIANTS
 from .predictions import joint_view
+from .problems import DEFAULT_CELLS, LOSS_NAMES, build_problem, resolve_bounds
 from .spec import (
     CLIError,
     actuator_arg,
     bounds_arg,
-    build_problem,
     check_outputs,
     fixed_arg,
     note,
     parameters_arg,
     print_result,
-    resolve_bounds,
     warn,
 )
 
@@ -57,8 +51,17 @@ def add_parser(sub) -> None:
     parser.add_argument("--leave-one-out", action="store_true",
                         help="with --joint: also fit every loop but one and predict the one "
                         "left out, for each loop; reports each held-out error")
-    parser.add_argument("--variant", choices=VARIANTS, default="energy",
-                        help="Jiles–Atherton form (energy: the paper's)")
+    parser.add_argument("--variant", help="model form: " + ", ".join(VARIANTS) + " (energy: "
+                        "the paper's Jiles–Atherton form, the default; play and preisach: "
+                        "forms of pinning cells with return-point memory, their own "
+                        "parameter 'spread'); with --leave-one-out a comma-separated list "
+                        "to compare (default there: " + ",".join(CANDIDATES) + ")")
+    parser.add_argument("--cells", type=POSITIVE_INT, default=DEFAULT_CELLS,
+                        help="pinning cells of the forms play and preisach")
+    parser.add_argument("--losses", help="loss coefficients to identify with the "
+                        "rate-dependent model: 'eddy', 'excess' or 'eddy,excess' (the file "
+                        "needs times; their box is derived from the data's dB/dt unless "
+                        "--bounds names it)")
     parser.add_argument("--columns", help="column names for a file without a header, "
                         "e.g. 't,H,y [um]'")
     parser.add_argument("--actuator", default="actuator1",
@@ -141,7 +144,8 @@ def run(args) -> int:
             "output": args.output, "actuator": actuator.to_dict(),
             "fixed": fixed_arg(args.fix, known),
             "run_in_periods": args.run_in_periods, "substeps": args.substeps,
-            "variant": args.variant, "joint": args.joint,
+            "variant": None, "cells": args.cells, "losses": _losses(args.losses),
+            "joint": args.joint,
             "per_loop": [n.strip() for n in (args.per_loop or "").split(",") if n.strip()],
             "vary": args.vary, "vary_degree": args.vary_degree}
     for flag, value in (("--per-loop", spec["per_loop"]), ("--vary", args.vary),
@@ -162,8 +166,13 @@ def run(args) -> int:
     if size > 5e6 and args.progress:
         note("identify", f"read {sum(lp.n_samples for lp in loops)} samples in "
                          f"{len(loops)} loop{'s' if len(loops) > 1 else ''}")
-    bounds, where = resolve_bounds(spec, given, loops)
+    forms = _forms(args)
+    spec["variant"] = forms[0]
+    if args.leave_one_out:
+        check_comparison(spec, loops, forms)
+    bounds, extra, where = resolve_bounds(spec, given, loops)
     spec["bounds"] = bounds_to_json(bounds)
+    spec["extra_bounds"] = {n: list(v) for n, v in extra.items()}
     problem = build_problem(spec, loops)  # (its warnings: one line each, see main)
     method = _method(args, problem)
     if args.start and method in HYBRID:  # (only with --method auto) a start means a local solve
@@ -171,11 +180,22 @@ def run(args) -> int:
     if method not in HYBRID and (args.checkpoint or args.resume):
         raise CLIError(f"--checkpoint/--resume apply to the hybrid GAs; --method {method} is a "
                        "local solve (not checkpointed: rerun it).")
+    held = None
+    if args.leave_one_out:  # (first: with several forms, it chooses the one to fit)
+        held = leave_one_out(args, spec, given, loops, method, forms)
+        if held["partial"]:
+            return _interrupted(args, spec, held)
+        if held["kept"] != spec["variant"]:
+            spec["variant"] = held["kept"]
+            bounds, extra, where = resolve_bounds(spec, given, loops)
+            spec["bounds"] = bounds_to_json(bounds)
+            spec["extra_bounds"] = {n: list(v) for n, v in extra.items()}
+            problem = build_problem(spec, loops)
     if where and args.progress:  # (after every check of the input: errors stay one line)
         note("identify", where)
     result = decimated_first(args, spec, loops, problem, method) or \
         fit_by_options(args, problem, method, start)
-    if where and where.startswith("bounds derived") and not args.leave_one_out:
+    if where and where.startswith("bounds derived"):
         result, problem = widen_derived_box(args, spec, given, loops, problem, result)
     if stop_requested() and result.result != "interrupted":  # Ctrl-C during a local solve
         result = result.with_outcome("interrupted")
@@ -185,7 +205,6 @@ def run(args) -> int:
         d["coefficients"] = {n: float(v) for n, v in result.params.items()}
     if "history" in result.extra:
         d["history"] = result.extra["history"]
-    held = leave_one_out(args, spec, loops, method) if args.leave_one_out else None
     if held is not None:
         d["leave_one_out"] = held
     figures = _identify_figure(args, problem, result, has_t=loops[0].t is not None) \
@@ -203,7 +222,52 @@ def run(args) -> int:
     print_result(args, d, text)
     for w in result.warnings:
         warn(args, w)
-    return _exit_status(result)
+    status = _exit_status(result)
+    if status == 0 and held is not None and held["stopped_short"]:
+        warn(args, "a fit of the leave-one-out stopped short: "
+             + "; ".join(held["stopped_short"]) + " (its held-out error is not final)")
+        return 3
+    return status
+
+
+def _forms(args) -> list[str]:
+    """The forms --variant names (a list with --leave-one-out; the candidates if none)."""
+    if args.variant is None:
+        return list(CANDIDATES) if args.leave_one_out else ["energy"]
+    forms = [f.strip() for f in args.variant.split(",") if f.strip()]
+    bad = [f for f in forms if f not in VARIANTS]
+    if bad or not forms:
+        raise CLIError(f"--variant {args.variant!r}: the forms are {', '.join(VARIANTS)}.")
+    if len(forms) > 1 and not args.leave_one_out:
+        raise CLIError(f"--variant {args.variant}: several forms are compared only by "
+                       "--leave-one-out (with --joint); name one form to fit.")
+    return forms
+
+
+def _losses(text) -> list[str]:
+    """--losses 'eddy,excess' → the loss coefficients to identify."""
+    if not text:
+        return []
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    bad = [n for n in names if n not in LOSS_NAMES]
+    if bad or not names or len(set(names)) != len(names):
+        raise CLIError(f"--losses {text!r}: name the loss coefficients to identify, each "
+                       f"once, from {list(LOSS_NAMES)}.")
+    return names
+
+
+def _interrupted(args, spec, held) -> int:
+    """A leave-one-out stopped by Ctrl-C/SIGTERM: the folds that finished, marked
+    PARTIAL, written where --out says; exit 130."""
+    from jaxhyst.io import write_json
+
+    d = {"outcome": "interrupted", "problem": {**spec, "data": _portable_path(
+        spec["data"], args.out)}, "leave_one_out": held}
+    if args.out:
+        write_json(args.out, d)
+    print_result(args, d, "leave-one-out interrupted: no final fit" + held_out_text(held)
+                 + (f"\n  wrote {args.out} (PARTIAL)" if args.out else ""))
+    return 130
 
 
 def _portable_path(path: str, out: str | None) -> str:

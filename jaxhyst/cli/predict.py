@@ -6,7 +6,8 @@ from __future__ import annotations
 import os
 
 from .options import COUNT, FINITE, POSITIVE
-from .spec import CLIError, check_outputs, load_result, loop_field, print_result, warn
+from .problems import load_result
+from .spec import CLIError, check_outputs, loop_field, print_result, warn
 
 
 def add_parser(sub) -> None:
@@ -46,7 +47,7 @@ def run(args) -> int:
     from .predictions import error_summary, predict_loops, records_of
 
     check_outputs(args)
-    _, spec, fitted, params = load_result(args.result)
+    saved, spec, fitted, params = load_result(args.result)
     source = args.data or spec["data"]
     loops = read_loops(source, spec.get("columns"))
     if args.loop:
@@ -81,6 +82,14 @@ def run(args) -> int:
         nan = np.full(pred.shape, np.nan)
         columns["data"].append(nan if data is None else data)
         columns["error"].append(nan if data is None else pred - data)
+    expected = _expected_error(saved)
+    fitted_range = _fitted_range(spec, records_of(fitted).actuator)
+    for lp, row in zip(loops, rows, strict=True):
+        row["extrapolation"] = _outside(spec, lp, records_of(fitted).actuator, fitted_range,
+                                        overrides)
+        if expected is not None:
+            row["expected_relative_error"] = expected["extrapolated" if row["extrapolation"]
+                                                      else "interpolated"]
     if args.out:
         write_columns_csv(args.out, {k: np.concatenate(v) for k, v in columns.items()})
     text = [f"prediction of {len(rows)} loop(s) of {os.path.basename(source)} from "
@@ -89,9 +98,67 @@ def run(args) -> int:
         err = (f": rms error {r['rms']:.4g} (max {r['max_abs']:.4g}, "
                f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|)") if "rms" in r else \
             " (no data to compare)"
-        text.append(f"  loop {r['loop']}{err}")
+        where = ("; an extrapolation beyond the fitted loops' " + r["extrapolation"]
+                 if r["extrapolation"] else "; within the fitted loops' conditions")
+        exp = r.get("expected_relative_error")
+        hint = (f"; expected from the leave-one-out folds: {100 * exp:.2g} % of max|data|"
+                if exp is not None else "")
+        text.append(f"  loop {r['loop']}{err}{where}{hint}")
     if args.out:
         text.append(f"  wrote {args.out}")
     print_result(args, {"loops": rows, "out": args.out}, "\n".join(text))
     return 0
 
+
+
+def _expected_error(saved) -> dict | None:
+    """The error a prediction may be expected to have, from the result's leave-one-out
+    folds of the kept form: the largest held-out rms relative to the loop's size among
+    the interpolated folds (a loop inside the others' conditions) and among all folds
+    (an extrapolation); None without folds."""
+    held = saved.get("leave_one_out")
+    if not isinstance(held, dict) or not held.get("kept"):
+        return None
+    rows = held["forms"][held["kept"]]["rows"]
+    if not rows:
+        return None
+    rel = [r["rms"] / r["data_scale"] for r in rows]
+    inside = [x for x, r in zip(rel, rows, strict=True) if not r.get("outside")]
+    return {"interpolated": max(inside) if inside else max(rel), "extrapolated": max(rel)}
+
+
+def _fitted_range(spec, actuator) -> dict:
+    """The range of each condition (amplitude, frequency, temperature) of the fitted
+    loops."""
+    from jaxhyst.io import read_loops
+
+    from .problems import loop_conditions
+
+    loops = read_loops(spec["data"], spec.get("columns"))
+    if spec.get("loop") is not None and not spec.get("joint"):
+        loops = [lp for lp in loops if lp.index == spec["loop"]] or loops
+    c = loop_conditions(spec, loops, actuator)
+    out = {"amplitude": (min(c.amplitude), max(c.amplitude))}
+    for name in ("frequency", "temperature"):
+        values = getattr(c, name)
+        if values is not None:
+            out[name] = (min(values), max(values))
+    return out
+
+
+def _outside(spec, loop, actuator, fitted_range, overrides) -> str:
+    """'' if ``loop`` lies within the fitted loops' conditions (1 % of slack), else
+    which condition lies beyond them and how far."""
+    from .problems import loop_conditions
+
+    c = loop_conditions(spec, [loop], actuator, overrides)
+    units = {"amplitude": "A/m", "frequency": "Hz", "temperature": "°C"}
+    for name, (lo, hi) in fitted_range.items():
+        values = getattr(c, name)
+        if values is None:
+            continue
+        v = values[0]
+        slack = 0.01 * max(abs(lo), abs(hi), 1e-300)
+        if v < lo - slack or v > hi + slack:
+            return f"{name} ({v:.4g} {units[name]}; fitted {lo:.4g}–{hi:.4g})"
+    return ""

@@ -4,7 +4,8 @@ prediction of each loop and its error."""
 
 from __future__ import annotations
 
-from .spec import CLIError, loop_conditions, loop_drive
+from .problems import loop_conditions
+from .spec import CLIError, loop_drive
 
 
 def records_of(problem):
@@ -37,12 +38,15 @@ def predict_loops(spec, fitted, params, loops, conditions=None) -> list:
     ``spec``) at ``params``: [(predicted, data or None)] in the fitted output's unit. A
     condition model is evaluated at each loop's conditions (``conditions``:
     {"frequency": …, "temperature": …} overriding the file's); shared joint parameters
-    are used as they are; a single-loop fit's parameters likewise."""
+    are used as they are; a single-loop fit's parameters likewise. The model is the
+    fit's: its form, loss coefficients and the form's own parameters."""
+    import jax
     import numpy as np
 
     import jaxhyst as jh
     from jaxhyst.identify.outputs import output_kind
     from jaxhyst.io import SIGNAL_OUTPUTS
+    from jaxhyst.model.paths import split_parameters
 
     records = records_of(fitted)
     kind = output_kind(records.output if records.output != "mixed" else records.outputs[0])
@@ -50,19 +54,21 @@ def predict_loops(spec, fitted, params, loops, conditions=None) -> list:
     out = []
     for lp in loops:
         if isinstance(fitted, jh.ConditionProblem):
-            p = fitted.at(params, loop_conditions(spec, [lp], actuator, conditions))
-            p = jh.Parameters.from_array(np.asarray(p.to_array())[0])
-        elif np.ndim(params.Ms) == 1:
-            values = np.asarray(params.to_array())
-            if np.ptp(values, axis=0).max() > 0:
+            tree = fitted.at(params, loop_conditions(spec, [lp], actuator, conditions))
+            tree = jax.tree.map(lambda x: np.asarray(x)[0], tree)
+        elif np.ndim(split_parameters(params)[0].Ms) == 1:
+            per_loop = [np.asarray(x) for x in jax.tree.leaves(params)]
+            if any(np.ptp(x) > 0 for x in per_loop):
                 raise CLIError("the fit has parameters per loop (--per-loop): it cannot "
                                "predict another loop; fit with shared parameters or --vary.")
-            p = jh.Parameters.from_array(values[0])
+            tree = jax.tree.map(lambda x: np.asarray(x)[0], params)
         else:
-            p = params
+            tree = params
+        p, losses, form = split_parameters(tree)
         name = next((q for q, k in SIGNAL_OUTPUTS.items() if k == kind.name), None)
         drive = loop_drive(spec, lp, name or "B", actuator)
-        sim = jh.simulate(p, actuator, drive, records.variant, records.substeps)
+        sim = jh.simulate(p, actuator, drive, records.variant if form is None else form,
+                          records.substeps, losses)
         predicted = np.asarray(drive.observed(kind.of(sim)))
         data = lp.signals.get(name)
         out.append((predicted, None if data is None else np.asarray(data)))

@@ -5,7 +5,8 @@ from __future__ import annotations
 import os
 
 from .options import POSITIVE, POSITIVE_INT
-from .spec import check_outputs, load_result, print_result
+from .problems import load_result
+from .spec import check_outputs, print_result
 
 
 def add_parser(sub) -> None:

@@ -23,7 +23,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from ..model.magnetization import magnetization_path
+from ..model.paths import hysteresis_path
 from ..saved import Model
 from .limits import InputLimits
 
@@ -45,7 +45,7 @@ class Reach(eqx.Module):
 
 @eqx.filter_jit
 def _sweep_magnetization(p, H, variant, substeps):
-    M_sub, _ = magnetization_path(p, H, variant=variant, substeps=substeps)
+    M_sub, _, _ = hysteresis_path(variant, p, None, H, substeps=substeps)
     return M_sub[:, -1]
 
 

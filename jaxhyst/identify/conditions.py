@@ -42,6 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..model.losses import LOSS_NAMES, Losses
+from ..model.paths import OWN_NAMES, own_parameters
 from ..names import CONDITION_FEATURES
 from ..params import NAMES, Bounds, Parameters
 from .flux import FluxProblem
@@ -51,6 +52,9 @@ from .space import ParameterSpace
 #: The features a condition provides: name → (what, unit of the raw condition).
 FEATURES = CONDITION_FEATURES
 
+#: Every name a condition model may vary: the ten, the loss coefficients and the
+#: built-in forms' own parameters.
+VARYING_NAMES = (*NAMES, *LOSS_NAMES, *OWN_NAMES)
 #: Parameters that vary additively (the others multiplicatively: they are ≥ 0).
 ADDITIVE = ("alpha", "c")
 #: Default box of a coefficient s_j or q_j (per unit feature: a power of f within ±3).
@@ -123,9 +127,9 @@ class ConditionModel:
         pairs = []
         for name, feats in dict(varying).items():
             feats = (feats,) if isinstance(feats, str) else tuple(feats)
-            if name not in (*NAMES, *LOSS_NAMES):
+            if name not in VARYING_NAMES:
                 raise ValueError(f"ConditionModel: {name!r} is not a parameter (names: "
-                                 f"{list(NAMES) + list(LOSS_NAMES)}).")
+                                 f"{list(VARYING_NAMES)}).")
             bad = [f for f in feats if f not in FEATURES]
             if bad or not feats:
                 raise ValueError(f"ConditionModel: {name} varies with {list(feats)}; the "
@@ -225,30 +229,28 @@ class ConditionModel:
 
 
 def condition_space(bounds: Bounds, model: ConditionModel, fixed: Mapping | None = None,
-                    losses: Mapping | None = None, slope_bounds: Mapping | None = None
-                    ) -> ParameterSpace:
+                    losses: Mapping | None = None, slope_bounds: Mapping | None = None,
+                    form=None, own: Mapping | None = None) -> ParameterSpace:
     """The space of a `ConditionProblem`'s coefficients: the reference values of the ten
     parameters in ``bounds`` (and of the loss coefficients in the box ``losses``
-    ``{name: (lower, upper)}``, a coefficient left out held at 0, when given), and each
-    coefficient of ``model.coefficient_names()`` in `SLOPE_BOX` unless ``slope_bounds``
-    names it. ``fixed``: ``{name: value}`` of any of them held fixed."""
-    names = [*NAMES, *(LOSS_NAMES if losses is not None else ())]
-    lo = dict(zip(NAMES, np.asarray(bounds.lower.to_array(), float).tolist(), strict=True))
-    hi = dict(zip(NAMES, np.asarray(bounds.upper.to_array(), float).tolist(), strict=True))
-    fixed = dict(fixed or {})
-    if losses is not None:
-        unknown = sorted(set(losses) - set(LOSS_NAMES))
-        if unknown:
-            raise ValueError(f"losses: unknown coefficients {unknown}; they are "
-                             f"{list(LOSS_NAMES)}.")
-        for n in LOSS_NAMES:
-            lo[n], hi[n] = (float(v) for v in losses.get(n, (0.0, 0.0)))
-            if n not in losses:
-                fixed.setdefault(n, 0.0)
+    ``{name: (lower, upper)}``, a coefficient left out held at 0, when given; and of the
+    parameters of its own of a ``form`` such as `jaxhyst.PlayJA`, in the box ``own`` or
+    the form's default), and each coefficient of ``model.coefficient_names()`` in
+    `SLOPE_BOX` unless ``slope_bounds`` names it. ``fixed``: ``{name: value}`` of any of
+    them held fixed."""
+    base = ParameterSpace.for_model(bounds, losses=losses, form=form, own=own)
+    names = list(base.flat_names)
+    lo = {n: v for n, v in zip(base.flat_names, np.asarray(base.base).tolist(), strict=True)}
+    hi = dict(lo)
+    for n, a, b in zip(base.names, np.asarray(base.lower).tolist(),
+                       np.asarray(base.upper).tolist(), strict=True):
+        lo[n], hi[n] = a, b
+    fixed = {**base.fixed, **dict(fixed or {})}  # (a loss coefficient not in losses: 0)
     for n in model.varies:
         if n not in names:
             raise ValueError(f"{n} varies in the ConditionModel but is not a parameter of "
-                             "this space (pass losses= for the loss coefficients).")
+                             "this space (pass losses= for the loss coefficients, form= "
+                             "for a form's own parameters).")
     for c in model.coefficient_names():
         names.append(c)
         lo[c], hi[c] = (slope_bounds or {}).get(c, SLOPE_BOX)
@@ -301,6 +303,10 @@ class ConditionProblem(AbstractProblem):
         self.records, self.space = records, space
         self.losses = any(n in space.flat_names for n in LOSS_NAMES)
         self.priors = ()
+        own = [n for n in space.flat_names if n in OWN_NAMES]
+        if own and not own_parameters(records.variant):
+            raise ValueError(f"{own} are parameters of a form of pinning cells, but the "
+                             f"records are fitted with {type(records.variant).__name__}.")
 
     @property
     def condition_model(self) -> ConditionModel:
@@ -323,8 +329,14 @@ class ConditionProblem(AbstractProblem):
     def parameters_at(self, coefficients, X):
         """The records problem's parameter pytree (leaves (L,)) at features X (L, F)."""
         values = self.form.evaluate(coefficients, X)
-        p = Parameters(**{n: values[n] for n in NAMES})
-        return (p, Losses(values["eddy"], values["excess"])) if self.losses else p
+        members = [Parameters(**{n: values[n] for n in NAMES})]
+        if self.losses:
+            members.append(Losses(values["eddy"], values["excess"]))
+        own = list(own_parameters(self.records.variant))
+        if own and own[0] in values:
+            members.append(eqx.tree_at(lambda f: [getattr(f, n) for n in own],
+                                       self.records.variant, [values[n] for n in own]))
+        return members[0] if len(members) == 1 else tuple(members)
 
     def per_record(self, coefficients):
         """The parameters of every fitted record."""
@@ -356,17 +368,17 @@ class ConditionProblem(AbstractProblem):
         return eqx.tree_at(lambda q: q.records, self, self.records.with_data(data))
 
 
-def per_record_space(bounds: Bounds, n_records: int, losses: Mapping | None = None
-                     ) -> ParameterSpace:
+def per_record_space(bounds: Bounds, n_records: int, losses: Mapping | None = None,
+                     form=None) -> ParameterSpace:
     """A space over one parameter set per record (leaves (L,)), every entry free: what a
-    records problem is built with before a `ConditionProblem` replaces its parameters."""
-    if losses is None:
-        return ParameterSpace.for_loops(bounds, n_records, per_loop=NAMES)
-    lower = (Parameters.from_array(np.tile(np.asarray(bounds.lower.to_array()), (n_records, 1))),
-             Losses(np.zeros(n_records), np.zeros(n_records)))
-    upper = (Parameters.from_array(np.tile(np.asarray(bounds.upper.to_array()), (n_records, 1))),
-             Losses(np.full(n_records, 1e9), np.full(n_records, 1e9)))
-    return ParameterSpace.for_tree(lower, upper)
+    records problem is built with before a `ConditionProblem` replaces its parameters
+    (with ``losses``: the loss coefficients too; with a ``form`` that has parameters of
+    its own, those too)."""
+    box = None if losses is None else {n: (0.0, 1e9) for n in LOSS_NAMES}
+    names = [*NAMES, *(LOSS_NAMES if losses is not None else ()),
+             *(own_parameters(form) if form is not None else ())]
+    return ParameterSpace.for_model(bounds, losses=box, form=form, n_loops=n_records,
+                                    per_loop=names)
 
 
 def split_records(n: int, held_out: int | Sequence[int]) -> tuple[list[int], list[int]]:

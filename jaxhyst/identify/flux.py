@@ -21,8 +21,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..model.flux import FluxDrive, simulate_flux_unchecked
-from ..model.jiles_atherton import PAPER_VARIANT, AbstractJAVariant
-from ..model.losses import split_losses
+from ..model.jiles_atherton import PAPER_VARIANT
+from ..model.paths import split_parameters
 from ..names import DEFAULT_SUBSTEPS
 from .problem import AbstractProblem, GaussianPrior, ResidualGroup
 from .space import ParameterSpace
@@ -67,13 +67,13 @@ class FluxProblem(AbstractProblem):
     space: ParameterSpace
     output: str = eqx.field(static=True)
     scales: jax.Array  # (L,) max|data| per record (data: new data do not recompile)
-    variant: AbstractJAVariant = PAPER_VARIANT
+    variant: eqx.Module = PAPER_VARIANT  # (a model form)
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
     sigma: float | None = eqx.field(static=True, default=None)
     priors: tuple = eqx.field(static=True, default=())
 
     def __init__(self, data, drives: Sequence[FluxDrive], space: ParameterSpace,
-                 output: str = "field", variant: AbstractJAVariant = PAPER_VARIANT,
+                 output: str = "field", variant=PAPER_VARIANT,
                  substeps: int = DEFAULT_SUBSTEPS, sigma: float | None = None,
                  priors: Sequence[GaussianPrior] = ()):
         if output not in FLUX_OUTPUTS:
@@ -112,13 +112,14 @@ class FluxProblem(AbstractProblem):
 
     def simulate(self, params):
         """The `FluxSimulation` of every record (leaves with a leading axis L)."""
-        p, losses = split_losses(params)
-        per_record = jnp.ndim(p.Ms) == 1
-        axes = 0 if per_record else None
-        return jax.vmap(lambda p, L, d: simulate_flux_unchecked(p, d, self.variant, L,
-                                                                self.substeps),
-                        in_axes=(axes, axes if losses is not None else None, 0))(
-            p, losses, self.drive)
+        per_record = jnp.ndim(split_parameters(params)[0].Ms) == 1
+
+        def one(params, drive):
+            p, losses, form = split_parameters(params)
+            return simulate_flux_unchecked(p, drive, self.variant if form is None else form,
+                                           losses, self.substeps)
+
+        return jax.vmap(one, in_axes=(0 if per_record else None, 0))(params, self.drive)
 
     def predict(self, params) -> jax.Array:
         """The model's field (L, n_obs) or energies per cycle (L,)."""

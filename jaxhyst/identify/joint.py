@@ -31,7 +31,7 @@ import numpy as np
 
 from ..actuator import Actuator
 from ..drive import Drive, drive_from_record
-from ..model.jiles_atherton import AbstractJAVariant
+from ..model.paths import split_parameters
 from ..model.simulate import DEFAULT_SUBSTEPS, PAPER_VARIANT, simulate_unchecked
 from ..params import STRUCTURAL, Bounds
 from ..saved import Model
@@ -117,14 +117,14 @@ class JointProblem(AbstractProblem):
     scales: jax.Array  # (L,) max|data| of each loop (data: a new data set does not recompile)
     outputs: tuple = eqx.field(static=True)
     sigmas: tuple = eqx.field(static=True)
-    variant: AbstractJAVariant = PAPER_VARIANT
+    variant: eqx.Module = PAPER_VARIANT  # (a model form)
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
     shard_loops: bool = eqx.field(static=True, default=False)
     priors: tuple = eqx.field(static=True, default=())
 
     def __init__(self, data: Sequence, drives: Sequence[Drive], actuator: Actuator,
                  space: ParameterSpace, output: str | Sequence[str] = "displacement",
-                 variant: AbstractJAVariant = PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
+                 variant=PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
                  shard_loops: bool = False, sigma=None,
                  priors: Sequence[GaussianPrior] = ()):
         L = len(data)
@@ -194,10 +194,16 @@ class JointProblem(AbstractProblem):
                      for i, o in enumerate(self.outputs))
 
     def simulate(self, params):
-        """Per-loop `Simulation` (leaves (L, T)) for `Parameters` with leaves (L,)."""
+        """Per-loop `Simulation` (leaves (L, T)) for a model's parameters with leaves (L,)
+        (`Parameters`, or a tuple with `Losses` and/or the form: `ParameterSpace.for_model`)."""
+        def one(params, drive):
+            p, losses, form = split_parameters(params)
+            return simulate_unchecked(p, self.actuator, drive,
+                                      self.variant if form is None else form, self.substeps,
+                                      losses)
+
         def loops(params, drive):
-            return jax.vmap(simulate_unchecked, in_axes=(0, None, 0, None, None))(
-                params, self.actuator, drive, self.variant, self.substeps)
+            return jax.vmap(one)(params, drive)
 
         return map_sharded(loops, self.n_loops, self.shard_loops)(params, self.drive)
 
@@ -223,7 +229,9 @@ class JointProblem(AbstractProblem):
     def model(self, params) -> Model:
         """The identified model at ``params`` (this problem's actuator, form and
         substeps), to simulate other drives or save (`jaxhyst.save_model`)."""
-        return Model(params, self.actuator, self.variant, self.substeps, None)
+        p, losses, form = split_parameters(params)
+        return Model(p, self.actuator, self.variant if form is None else form,
+                     self.substeps, losses)
 
     @property
     def observations(self):
@@ -241,14 +249,14 @@ def space_bounds_of_loop(space: ParameterSpace) -> Bounds:
     from ..params import NAMES, Parameters
 
     L = space.n_loops
-    base = np.asarray(space.base).reshape(len(NAMES), L)[:, 0]
+    base = np.asarray(space.base).reshape(-1, L)[:len(NAMES), 0]
     p = Parameters.from_array(jnp.asarray(base))
     return Bounds(p, p)
 
 
 def loop_problem(H, data, bounds: Bounds | dict | None = None, *,
                  output: str = "flux_density", t=None, fixed: dict | None = None,
-                 variant: AbstractJAVariant = PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
+                 variant=PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
                  from_demagnetized: bool = False, run_in_periods: int = 1,
                  monotone_field: bool = True, require_full_period: bool = True) -> Problem:
     """A magnetization-only problem from one measured loop.

@@ -18,7 +18,8 @@ import numpy as np
 import optimistix as optx
 
 from ..model.accuracy import sampling_message
-from ..params import NAMES, STRUCTURAL, UNITS, Parameters, at_physical_limit
+from ..model.paths import PARAMETER_UNITS, model_values
+from ..params import STRUCTURAL, Parameters, at_physical_limit
 from .outputs import MAGNETIC_OUTPUTS
 
 
@@ -232,9 +233,10 @@ class IdentificationResult:
     @property
     def n_loops(self) -> int | None:
         """Number of loops of a joint identification (parameters with leaves (L,))."""
-        if not self._is_parameters() or np.ndim(self.params.Ms) == 0:
+        if not self._is_parameters():
             return None
-        return int(np.shape(self.params.Ms)[0])
+        Ms = model_values(self.params)["Ms"]
+        return None if np.ndim(Ms) == 0 else int(np.shape(Ms)[0])
 
     def with_report(self, report=None, error: str | None = None) -> IdentificationResult:
         """A copy with the identifiability report (or the reason it is missing)."""
@@ -248,10 +250,17 @@ class IdentificationResult:
 
     # -- presentation -----------------------------------------------------------------------
     def _is_parameters(self) -> bool:
-        return isinstance(self.params, Parameters)
+        """Whether the parameters are a model's (`Parameters`, alone or with `Losses`
+        and a form's own: `jaxhyst.model.paths.split_parameters`)."""
+        first = self.params[0] if isinstance(self.params, tuple) and self.params else \
+            self.params
+        return isinstance(first, Parameters)
+
+    def _names(self) -> list[str]:
+        return list(model_values(self.params))
 
     def _value(self, n):
-        v = np.asarray(getattr(self.params, n), dtype=float)
+        v = np.asarray(model_values(self.params)[n], dtype=float)
         return float(v) if v.ndim == 0 else v.tolist()
 
     def _is_free(self, n) -> bool:
@@ -259,8 +268,8 @@ class IdentificationResult:
 
     def to_dict(self) -> dict:
         if self._is_parameters():
-            params = {n: {"value": self._value(n), "unit": UNITS[n], "free": self._is_free(n)}
-                      for n in NAMES}
+            params = {n: {"value": self._value(n), "unit": PARAMETER_UNITS.get(n, ""),
+                          "free": self._is_free(n)} for n in self._names()}
         else:
             params = {n: {"value": v, "free": True}
                       for n, v in zip(self.free, self.values, strict=True)}
@@ -297,7 +306,7 @@ class IdentificationResult:
                              f"max {g['max_abs']:.3e} {g['unit']}")
         magnetic_only = self.output in MAGNETIC_OUTPUTS
         if self._is_parameters():
-            for n in NAMES:
+            for n in self._names():
                 if magnetic_only and n in STRUCTURAL and not self._is_free(n):
                     continue  # cannot affect M or B: not printed
                 mark = "" if self._is_free(n) else "  (fixed)"
@@ -310,7 +319,7 @@ class IdentificationResult:
                     mark = mark or ("  (shared)" if shared else "  (per loop)")
                 else:
                     text = f"{v:>13.6g}"
-                lines.append(f"  {n:<9}= {text} {UNITS[n]}{mark}")
+                lines.append(f"  {n:<9}= {text} {PARAMETER_UNITS.get(n, '')}{mark}")
         else:
             for n, v in zip(self.free, self.values, strict=True):
                 lines.append(f"  {n:<9}= {v:>13.6g}")

@@ -14,8 +14,7 @@ import numpy as np
 from ..actuator import Actuator
 from ..drive import Drive
 from ..model.accuracy import may_be_coarse, richardson_error
-from ..model.jiles_atherton import AbstractJAVariant
-from ..model.losses import split_losses
+from ..model.paths import split_parameters
 from ..model.simulate import (
     DEFAULT_SUBSTEPS,
     PAPER_VARIANT,
@@ -72,13 +71,13 @@ class Problem(AbstractProblem):
     space: ParameterSpace
     scale: jax.Array  # max|data| (0-d; data, so a new data set does not recompile)
     output: str = eqx.field(static=True, default="displacement")
-    variant: AbstractJAVariant = PAPER_VARIANT
+    variant: eqx.Module = PAPER_VARIANT  # (a model form: a JA variant, PlayJA …)
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
     sigma: jax.Array | None = None  # the noise level (0-d), if known
     priors: tuple = eqx.field(static=True, default=())
 
     def __init__(self, data, drive: Drive, actuator: Actuator, space: ParameterSpace,
-                 output: str = "displacement", variant: AbstractJAVariant = PAPER_VARIANT,
+                 output: str = "displacement", variant=PAPER_VARIANT,
                  substeps: int = DEFAULT_SUBSTEPS, require_full_period: bool = True,
                  sigma: float | None = None, priors: Sequence[GaussianPrior] = ()):
         kind = output_kind(output)
@@ -133,10 +132,12 @@ class Problem(AbstractProblem):
 
     # -- model ----------------------------------------------------------------------
     def simulate(self, params) -> Simulation:
-        """The simulation at ``params``: `Parameters`, or ``(Parameters, Losses)`` for the
-        rate-dependent model (a space from `ParameterSpace.with_losses`)."""
-        p, losses = split_losses(params)
-        return simulate_unchecked(p, self.actuator, self.drive, self.variant, self.substeps,
+        """The simulation at ``params``: `Parameters`, or a tuple of them with `Losses`
+        (the rate-dependent model) and/or the form with its own parameters (a space from
+        `ParameterSpace.for_model`; `jaxhyst.model.paths.split_parameters`)."""
+        p, losses, form = split_parameters(params)
+        return simulate_unchecked(p, self.actuator, self.drive,
+                                  self.variant if form is None else form, self.substeps,
                                   losses)
 
     def predict(self, params: Parameters) -> jax.Array:
@@ -165,8 +166,9 @@ class Problem(AbstractProblem):
     def model(self, params) -> Model:
         """The identified model at ``params`` (this problem's actuator, form and
         substeps), to simulate other drives or save (`jaxhyst.save_model`)."""
-        p, losses = split_losses(params)
-        return Model(p, self.actuator, self.variant, self.substeps, losses)
+        p, losses, form = split_parameters(params)
+        return Model(p, self.actuator, self.variant if form is None else form,
+                     self.substeps, losses)
 
     @property
     def observations(self):

@@ -27,6 +27,7 @@ import numpy as np
 
 from .._typing import Array, ArrayLike, Float
 from ..model.losses import LOSS_NAMES, Losses
+from ..model.paths import own_parameters
 from ..params import NAMES, Bounds, Parameters, check_value
 
 
@@ -164,40 +165,8 @@ class ParameterSpace(eqx.Module):
         ten parameters as ``ParameterSpace(bounds, fixed)``, and the loss coefficients
         ``eddy`` and ``excess`` (`jaxhyst.Losses`) in the box ``losses``
         ``{name: (lower, upper)}`` (SI; a coefficient left out is held at 0). ``fixed``
-        may name them too."""
-        unknown = sorted(set(losses) - set(LOSS_NAMES))
-        if unknown:
-            raise ValueError(f"losses: unknown coefficients {unknown}; they are "
-                             f"{list(LOSS_NAMES)} ({{name: (lower, upper)}}, SI).")
-        fixed = dict(fixed or {})
-        names = (*NAMES, *LOSS_NAMES)
-        bad = [n for n in fixed if n not in names]
-        if bad:
-            raise ValueError(f"Cannot fix unknown parameter(s) {bad}; names are {list(names)}.")
-        box = {n: tuple(float(v) for v in losses.get(n, (0.0, 0.0))) for n in LOSS_NAMES}
-        for n, (a, b) in box.items():
-            if not (np.isfinite(a) and np.isfinite(b) and 0 <= a <= b):
-                raise ValueError(f"losses[{n!r}] = ({a}, {b}): the box of a loss coefficient "
-                                 "needs 0 <= lower <= upper, finite (SI).")
-            if n not in losses:
-                fixed.setdefault(n, 0.0)
-        lo = np.concatenate([np.asarray(bounds.lower.to_array(), float),
-                             [box[n][0] for n in LOSS_NAMES]])
-        hi = np.concatenate([np.asarray(bounds.upper.to_array(), float),
-                             [box[n][1] for n in LOSS_NAMES]])
-        base = 0.5 * (lo + hi)
-        for n, v in fixed.items():
-            value = check_value(n if n in NAMES else "", v, f"fixed value of {n}")
-            if n in LOSS_NAMES and value < 0:
-                raise ValueError(f"fixed value of {n} = {value:g}: a loss coefficient must "
-                                 "be >= 0.")
-            base[names.index(n)] = value
-        free = [i for i, n in enumerate(names) if n not in fixed]
-        space = object.__new__(cls)
-        space._set(lo[free], hi[free], base, free, list(range(len(free))),
-                   [names[i] for i in free], list(names),
-                   jax.tree.structure((bounds.lower, Losses())), ((),) * len(names))
-        return space
+        may name them too. (`for_model` with ``losses``.)"""
+        return cls.for_model(bounds, fixed=fixed, losses=losses)
 
     @classmethod
     def for_loops(cls, bounds: Bounds, n_loops: int, per_loop: Sequence[str] = (),
@@ -205,44 +174,93 @@ class ParameterSpace(eqx.Module):
         """Parameters of L loops (a `Parameters` with leaves of shape (L,)): each name is
         **shared** by all loops, **per loop** (``per_loop``; free entries ``a[2]`` …) or
         **fixed** (``{name: value}`` or ``{name: [v_0 … v_L-1]}``). Free entries: the
-        shared ones in `NAMES` order, then each per-loop name for loop 0 … L-1."""
+        shared ones in `NAMES` order, then each per-loop name for loop 0 … L-1.
+        (`for_model` with ``n_loops``.)"""
+        return cls.for_model(bounds, fixed=fixed, n_loops=n_loops, per_loop=per_loop)
+
+    @classmethod
+    def for_model(cls, bounds: Bounds, *, fixed: dict | None = None,
+                  losses: Mapping | None = None, form=None, own: Mapping | None = None,
+                  n_loops: int | None = None, per_loop: Sequence[str] = ()
+                  ) -> ParameterSpace:
+        """A space over a model's parameter pytree (`jaxhyst.model.paths.split_parameters`):
+        the ten `Parameters` in ``bounds``; with ``losses`` (``{"eddy": (lower, upper),
+        …}``, SI; a coefficient left out is held at 0) also `jaxhyst.Losses`; with a
+        ``form`` that has parameters of its own (`jaxhyst.PlayJA`: ``spread``) also that
+        form, its parameters in the box ``own`` (``{name: (lower, upper)}``) or the form's
+        default box. ``n_loops``: L loops, every leaf of shape (L,), each name **shared**
+        by all loops, **per loop** (``per_loop``: free entries ``a[2]`` …) or **fixed**;
+        None: one set. ``fixed``: ``{name: value}`` (a value per loop allowed)."""
         fixed = dict(fixed or {})
-        per_loop = tuple(per_loop)
-        bad = [n for n in (*per_loop, *fixed) if n not in NAMES]
+        lo = dict(zip(NAMES, np.asarray(bounds.lower.to_array(), float).tolist(), strict=True))
+        hi = dict(zip(NAMES, np.asarray(bounds.upper.to_array(), float).tolist(), strict=True))
+        members = [_TEMPLATE]
+        if losses is not None:
+            unknown = sorted(set(losses) - set(LOSS_NAMES))
+            if unknown:
+                raise ValueError(f"losses: unknown coefficients {unknown}; they are "
+                                 f"{list(LOSS_NAMES)} ({{name: (lower, upper)}}, SI).")
+            for n in LOSS_NAMES:
+                a, b = (float(v) for v in losses.get(n, (0.0, 0.0)))
+                if not (np.isfinite(a) and np.isfinite(b) and 0 <= a <= b):
+                    raise ValueError(f"losses[{n!r}] = ({a}, {b}): the box of a loss "
+                                     "coefficient needs 0 <= lower <= upper, finite (SI).")
+                lo[n], hi[n] = a, b
+                if n not in losses:
+                    fixed.setdefault(n, 0.0)
+            members.append(Losses())
+        own_names = own_parameters(form) if form is not None else {}
+        if own and not own_names:
+            raise ValueError(f"own: {sorted(own)} are parameters of no form here; give the "
+                             "form that has them (form=PlayJA() …).")
+        if own_names:
+            unknown = sorted(set(own or {}) - set(own_names))
+            if unknown:
+                raise ValueError(f"own: {type(form).__name__} has no parameters {unknown} "
+                                 f"(its own: {sorted(own_names)}).")
+            for n in own_names:
+                lo[n], hi[n] = (float(v) for v in (own or {}).get(n,
+                                                                   form.own_bounds(bounds)[n]))
+            members.append(form)
+        template = members[0] if len(members) == 1 else tuple(members)
+        names = [_leaf_name(path).rsplit(".", 1)[-1]
+                 for path, _ in jax.tree_util.tree_flatten_with_path(template)[0]]
+        bad = [n for n in (*per_loop, *fixed) if n not in names]
         if bad:
-            raise ValueError(f"Unknown parameter(s) {bad}; names are {list(NAMES)}.")
+            raise ValueError(f"Unknown parameter(s) {bad}; names are {names}.")
         both = sorted(set(per_loop) & set(fixed))
         if both:
             raise ValueError(f"{both} cannot be both per-loop and fixed.")
-        L = int(n_loops)
-        if L < 1:
+        L = None if n_loops is None else int(n_loops)
+        if L is not None and L < 1:
             raise ValueError("A joint problem needs at least one loop.")
-        lo = np.asarray(bounds.lower.to_array(), dtype=float)
-        hi = np.asarray(bounds.upper.to_array(), dtype=float)
-        base = np.tile(0.5 * (lo + hi)[:, None], (1, L))  # (10, L): field-major flat order
+        if L is None and per_loop:
+            raise ValueError("per_loop needs n_loops (a space over several loops).")
+        base = np.tile(np.array([0.5 * (lo[n] + hi[n]) for n in names])[:, None], (1, L or 1))
         for n, v in fixed.items():
-            base[NAMES.index(n)] = [check_value(n, x, f"fixed value of {n}")
-                                    for x in np.broadcast_to(np.asarray(v, float), (L,))]
-        positions, which, names, lower, upper = [], [], [], [], []
-        for j, n in enumerate(NAMES):
-            if n not in fixed and n not in per_loop:
-                positions += [j * L + l_ for l_ in range(L)]
-                which += [len(names)] * L
-                names.append(n)
-                lower.append(lo[j])
-                upper.append(hi[j])
-        for n in per_loop:
-            j = NAMES.index(n)
-            for l_ in range(L):
-                positions.append(j * L + l_)
-                which.append(len(names))
-                names.append(f"{n}[{l_}]")
-                lower.append(lo[j])
-                upper.append(hi[j])
+            base[names.index(n)] = [_checked(n, x) for x in
+                                    np.broadcast_to(np.asarray(v, float), (L or 1,))]
+        positions, which, free, lower, upper = [], [], [], [], []
+        for n in [n for n in names if n not in fixed and n not in per_loop] + list(per_loop):
+            loops = range(L or 1)
+            j = names.index(n)
+            if n in per_loop:
+                for l_ in loops:
+                    positions.append(j * L + l_)
+                    which.append(len(free))
+                    free.append(f"{n}[{l_}]")
+                    lower.append(lo[n])
+                    upper.append(hi[n])
+            else:
+                positions += [j * (L or 1) + l_ for l_ in loops]
+                which += [len(free)] * (L or 1)
+                free.append(n)
+                lower.append(lo[n])
+                upper.append(hi[n])
+        flat_names = names if L is None else [f"{n}[{l_}]" for n in names for l_ in range(L)]
         space = object.__new__(cls)
-        flat_names = [f"{n}[{l_}]" for n in NAMES for l_ in range(L)]
-        space._set(lower, upper, base.ravel(), positions, which, names, flat_names,
-                   jax.tree.structure(bounds.lower), ((L,),) * len(NAMES))
+        space._set(lower, upper, base.ravel(), positions, which, free, flat_names,
+                   jax.tree.structure(template), (() if L is None else (L,),) * len(names))
         return space
 
     # -- sizes and names ------------------------------------------------------------------
@@ -254,10 +272,17 @@ class ParameterSpace(eqx.Module):
     def n_loops(self) -> int | None:
         """L for a space over per-loop `Parameters` (leaves of shape (L,)), else None."""
         shape = self.shapes[0] if self.shapes else ()
-        return shape[0] if len(shape) == 1 and self._is_parameters() else None
+        return shape[0] if len(shape) == 1 and self._is_model() else None
 
     def _is_parameters(self) -> bool:
         return self.treedef == jax.tree.structure(_TEMPLATE)
+
+    def _is_model(self) -> bool:
+        """Whether the pytree is a model's parameters: `Parameters`, alone or first of a
+        tuple (`for_model`)."""
+        tree = jax.tree.unflatten(self.treedef, [0.0] * self.treedef.num_leaves)
+        first = tree[0] if isinstance(tree, tuple) and tree else tree
+        return isinstance(first, Parameters)
 
     # -- maps --------------------------------------------------------------------------------
     def flat_from_free(self, x) -> jax.Array:
@@ -326,7 +351,7 @@ class ParameterSpace(eqx.Module):
                 out[n] = float(base[i])
         if self.n_loops:  # collapse "a[0]", "a[1]" … into "a" when equal
             L, merged = self.n_loops, {}
-            for n in NAMES:
+            for n in dict.fromkeys(f.split("[")[0] for f in self.flat_names):
                 vals = [out.get(f"{n}[{l_}]") for l_ in range(L)]
                 if all(v is not None for v in vals):
                     merged[n] = vals[0] if len(set(vals)) == 1 else vals
@@ -374,6 +399,17 @@ class ParameterSpace(eqx.Module):
 
 
 _TEMPLATE = Parameters(*([0.0] * len(NAMES)))
+
+
+def _checked(name: str, value) -> float:
+    """A fixed value of ``name`` checked: a parameter's physical range, a loss coefficient
+    >= 0, a form's own parameter finite and >= 0."""
+    if name in NAMES:
+        return check_value(name, value, f"fixed value of {name}")
+    v = check_value("", value, f"fixed value of {name}")
+    if v < 0:
+        raise ValueError(f"fixed value of {name} = {v:g}: it must be >= 0.")
+    return v
 
 
 def JointSpace(bounds: Bounds, n_loops: int, per_loop: Sequence[str] = (),  # noqa: N802

@@ -23,19 +23,23 @@ from .jiles_atherton import (
 from .langevin import langevin, langevin_slope
 from .losses import Losses, eddy_coefficient
 from .magnetostriction import magnetostriction
+from .play import AbstractPlayForm, PlayJA, PreisachJA
 from .simulate import Simulation, simulate, simulate_unchecked
 from .structure import frequency_response
 
 __all__ = [
     "AbstractAnhystereticForm",
     "AbstractJAVariant",
+    "AbstractPlayForm",
     "ClassicJA",
     "EnergyBasedJA",
     "FluxDrive",
     "FluxDriven",
     "FluxSimulation",
     "Losses",
+    "PlayJA",
     "PopJA",
+    "PreisachJA",
     "Simulation",
     "VenkataramanJA",
     "eddy_coefficient",

@@ -1,7 +1,7 @@
 """The JAX batching machinery of the time loops, apart from the physics.
 
 A time loop takes seconds to trace. `batch_native` turns a loop written for one
-trajectory *and* for a batch (``loop(variant, p, H, batched)``) into one jitted function
+trajectory *and* for a batch (``loop(*args, batched)``) into one jitted function
 whose ``jax.vmap`` runs the batch-native form once on the whole batch (a ``custom_vmap``),
 each form traced once per structure and shapes (`traced_once`) whatever transformation or
 program calls it. `blocked_under_vmap` runs the work after the loop in blocks under a
@@ -49,20 +49,21 @@ def _weak(x) -> bool:
 
 
 def batch_native(loop):
-    """``loop(variant, p, H, batched)`` as a jitted function of (variant, p, H) (each form
-    traced once, `traced_once`) whose ``jax.vmap`` runs
-    ``loop(..., batched=True)`` once on the whole batch (unbatched arguments broadcast),
-    and a batch of one member the smaller unbatched program (a single-start solve)."""
-    unbatched = traced_once(lambda variant, p, H: loop(variant, p, H, False))
-    batched = traced_once(lambda variant, p, H: loop(variant, p, H, True))
+    """``loop(*args, batched)`` as a jitted function of ``args`` (each form traced once,
+    `traced_once`) whose ``jax.vmap`` runs ``loop(*args, batched=True)`` once on the whole
+    batch (unbatched arguments broadcast, so every array argument then carries the batch
+    axis first), and a batch of one member the smaller unbatched program (a
+    single-start solve)."""
+    unbatched = traced_once(lambda *args: loop(*args, False))
+    batched = traced_once(lambda *args: loop(*args, True))
 
     @jax.custom_batching.custom_vmap
-    def single(variant, p, H):
-        return unbatched(variant, p, H)
+    def single(*args):
+        return unbatched(*args)
 
     @single.def_vmap
-    def batch(axis_size, in_batched, variant, p, H):
-        args, flags = (variant, p, H), tuple(in_batched)
+    def batch(axis_size, in_batched, *args):
+        flags = tuple(in_batched)
         if not any(jax.tree.leaves(flags)):  # (jvp of the rule asks this too)
             out = unbatched(*args)
             return out, jax.tree.map(lambda _: False, out)

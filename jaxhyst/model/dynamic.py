@@ -19,46 +19,47 @@ linearized equation (the start slope for dB/dh) by a fixed number of Newton step
 that bracket. With k_e = k_x = 0 the first guess is h_{n+1} = H_{n+1}: the static model,
 to round-off. Within an interval h is taken linear in time for the structural forcing.
 
-**Derivatives** have a rule of the static loop's kind: each interval's partial
-derivatives with respect to its start state (M_n, h_n), the parameters, the loss
-coefficients and the field are formed by forward mode in one pass of the loop (through
-the implicit function theorem at the converged root, not Newton's steps), then
-propagated by a linear recurrence in (M, h); reverse
-mode transposes that recurrence and never replays the loop's body.
+**The time loop** is the skeleton of `jaxhyst.model.timeloop`, with `RateDependentPath`
+as its form: the state is the static form's state and h, and its derivative rule, batch
+rule and accelerator form are the skeleton's. The derivatives of h_{n+1} are the
+implicit function's (at the converged root, not Newton's steps differentiated). Any form
+with an interval map along the hysteresis field plugs in (`JAPath` for the Jiles–Atherton
+variants).
 """
 
 from __future__ import annotations
 
 import functools
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ..params import MU0, Parameters
-from .interval import direction_of, interval_map, on_accelerator
-from .jiles_atherton import AbstractJAVariant
-from .losses import Losses, dynamic_field
+from ..params import MU0
+from .interval import on_accelerator
+from .losses import LOSS_NAMES, dynamic_field
+from .timeloop import AbstractPathForm, Interval
 
 #: Newton steps per sample interval after the closed-form first guess.
 NEWTON_STEPS = 4
 
 
-def _balance(variant, S, p, losses, H0, H1, dt, M0, h0, h1):
+def _balance(inner, S, batched, p, losses, H0, H1, dt, state, h0, h1):
     """The interval's field balance G(h_{n+1}) (A/m): zero at the solution."""
-    M_points, _ = interval_map(variant, p, h0, h1, M0, S)
-    rate = (MU0 * (h1 + M_points[-1]) - MU0 * (h0 + M0)) / dt
+    M0 = inner.magnetization(state)
+    M1 = inner.end_magnetization(p, h0, h1, state, S, batched)
+    rate = (MU0 * (h1 + M1) - MU0 * (h0 + M0)) / dt
     return 0.5 * (H0 + H1) - 0.5 * (h0 + h1) - dynamic_field(rate, losses)
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
-def _end_field(variant, S, p, losses, H0, H1, dt, M0, h0):
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
+def _end_field(inner, S, batched, p, losses, H0, H1, dt, state, h0):
     """h_{n+1}: the root of `_balance` (module docstring). Its derivative is the implicit
     function's, dh = −∂G/∂(inputs)·d(inputs) / ∂G/∂h (not Newton's steps differentiated)."""
     R = 0.5 * (H0 + H1) - h0  # the balance's left side at h_{n+1} = h_n
     lo, hi = jnp.minimum(h0, h0 + 2.0 * R), jnp.maximum(h0, h0 + 2.0 * R)
     # first guess: dB/dh frozen at its start value, the quadratic in √|Δh| solved exactly
-    chi = variant.slope(h0, M0, jnp.where(R >= 0, 1.0, -1.0), p)
+    slope = jax.vmap(inner.slope) if batched else inner.slope
+    chi = slope(p, h0, state, jnp.where(R >= 0, 1.0, -1.0))
     c = MU0 * (1.0 + chi) / dt
     a = 0.5 + losses.eddy * c
     b = losses.excess * jnp.sqrt(jnp.maximum(c, 0.0))
@@ -68,7 +69,7 @@ def _end_field(variant, S, p, losses, H0, H1, dt, M0, h0):
     h1 = jnp.clip(h0 + jnp.where(moving, jnp.sign(R) * s * s, 0.0), lo, hi)
 
     def balance(h1):
-        return _balance(variant, S, p, losses, H0, H1, dt, M0, h0, h1)
+        return _balance(inner, S, batched, p, losses, H0, H1, dt, state, h0, h1)
 
     def newton(_, h1):
         G, dG = jax.jvp(balance, (h1,), (jnp.ones_like(h1),))
@@ -78,125 +79,51 @@ def _end_field(variant, S, p, losses, H0, H1, dt, M0, h0):
 
 
 @_end_field.defjvp
-def _end_field_jvp(variant, S, primals, tangents):
-    h1 = _end_field(variant, S, *primals)
+def _end_field_jvp(inner, S, batched, primals, tangents):
+    h1 = _end_field(inner, S, batched, *primals)
 
     def balance(h1, *inputs):
-        return _balance(variant, S, *inputs, h1)
+        return _balance(inner, S, batched, *inputs, h1)
 
     G_h = jax.jvp(lambda h: balance(h, *primals), (h1,), (jnp.ones_like(h1),))[1]
     G_inputs = jax.jvp(lambda *x: balance(h1, *x), primals, tangents)[1]
     return h1, -G_inputs / G_h
 
 
-def _interval(variant, p, losses, H0, H1, dt, M0, h0, S):
-    """One sample interval: (M at the S substep points, the slope at u_0 … u_{S−1} with
-    this interval's direction, h_{n+1})."""
-    h1 = _end_field(variant, S, p, losses, H0, H1, dt, M0, h0)
-    M_points, k_points = interval_map(variant, p, h0, h1, M0, S)
-    return M_points, k_points, h1
+class RateDependentPath(AbstractPathForm):
+    """The field-separation model in the time loop (module docstring): ``inner`` is the
+    static form along the hysteresis field h (`JAPath` with its own end slopes, or any
+    form with ``advance``, ``magnetization``, ``end_magnetization``, ``slope`` and
+    ``n_outputs``); the state is ``inner``'s and h; the parameters are ``(inner's
+    parameters, Losses)``; the outputs of an interval are ``inner``'s and h_{n+1}
+    (the last)."""
 
+    inner: AbstractPathForm
 
-def _outputs(variant, p, losses, H0, H1, dt, M0, h0, S):
-    """One interval's outputs as the derivative rule differentiates them: M at u_1 … u_S,
-    the slope at u_0 … u_S (this interval's direction), h_{n+1}: shape (2S + 2,)."""
-    M_points, k_points, h1 = _interval(variant, p, losses, H0, H1, dt, M0, h0, S)
-    k_end = variant.slope(h1, M_points[-1], direction_of(h0, h1), p)
-    return jnp.concatenate([M_points, k_points, k_end[None], h1[None]])
+    @property
+    def scales_with_Ms(self) -> bool:
+        return False  # (h does not scale with Ms)
 
+    @property
+    def state_size(self) -> int:
+        return self.inner.state_size + 1
 
-def _loop(variant, p, losses, t, H, S):
-    """The time loop: outputs of every interval (N, 2S + 2)."""
+    @property
+    def parameters(self) -> tuple[str, ...]:
+        return (*self.inner.parameters, *LOSS_NAMES)
 
-    def step(carry, interval):
-        M0, h0 = carry
-        H0, H1, dt = interval
-        out = _outputs(variant, p, losses, H0, H1, dt, M0, h0, S)
-        return (out[S - 1], out[-1]), out
+    def initial_state(self, theta, H0):
+        inner_theta, _ = theta
+        return jnp.concatenate([self.inner.initial_state(inner_theta, H0), H0[..., None]],
+                               axis=-1)
 
-    zero = jnp.zeros((), dtype=H.dtype)
-    _, out = jax.lax.scan(step, (zero, H[0]), (H[:-1], H[1:], jnp.diff(t)))
-    return out
+    def state_rows(self, substeps: int) -> tuple[int, ...]:
+        return (*self.inner.state_rows(substeps), self.inner.n_outputs(substeps))
 
-
-def _split(out, H, S):
-    """(M_sub (N, S), k_sub (N, S + 1), h at the samples (T,)) from the loop's outputs."""
-    return out[:, :S], out[:, S:2 * S + 1], jnp.concatenate([H[:1], out[:, -1]])
-
-
-def dynamic_path(p: Parameters, losses: Losses, t, H, *, variant: AbstractJAVariant,
-                 substeps: int):
-    """The rate-dependent magnetization path from the demagnetized state at rest:
-    (M at the substep points u_1 … u_S of each interval (N, S), dM/dh at u_0 … u_S with
-    the interval's direction (N, S + 1), the hysteresis field h at the samples (T,)).
-    ``t`` (s) and ``H`` (A/m) of shape (T,). Its derivative rule forms each interval's
-    partial derivatives by forward mode in one pass of the loop and propagates them by
-    a linear recurrence in the state (M, h), as the static loop's rule does
-    (`jaxhyst.model.magnetization`); times are not differentiated."""
-    S = int(substeps)
-    return _split(_path(p, losses, t, H, variant=variant, substeps=S), H, S)
-
-
-@eqx.filter_custom_jvp
-def _path(p, losses, t, H, *, variant, substeps):
-    return _loop(variant, p, losses, t, H, substeps)
-
-
-@_path.def_jvp
-def _path_jvp(primals, tangents, *, variant, substeps):
-    p, losses, t, H = primals
-    p_dot, losses_dot, _, H_dot = tangents
-    S = substeps
-    names = tuple(n for n in variant.parameters
-                  if p_dot is not None and getattr(p_dot, n) is not None)
-    coefficients = tuple(n for n in ("eddy", "excess")
-                         if losses_dot is not None and getattr(losses_dot, n) is not None)
-    with_H = H_dot is not None
-    if not (names or coefficients or with_H):
-        return _path(p, losses, t, H, variant=variant, substeps=S), None
-    K = 2 + len(names) + len(coefficients) + 2 * with_H
-
-    def step(carry, interval):
-        M0, h0 = carry
-        H0, H1, dt = interval
-        z = jnp.stack([M0, h0, *[getattr(p, n) for n in names],
-                       *[getattr(losses, n) for n in coefficients],
-                       *((H0, H1) if with_H else ())])
-
-        def outputs(z):
-            q = eqx.tree_at(lambda p: [getattr(p, n) for n in names], p,
-                            [z[2 + i] for i in range(len(names))]) if names else p
-            off = 2 + len(names)
-            L = eqx.tree_at(lambda L: [getattr(L, n) for n in coefficients], losses,
-                            [z[off + i] for i in range(len(coefficients))]) \
-                if coefficients else losses
-            h_start, h_end = (z[-2], z[-1]) if with_H else (H0, H1)
-            return _outputs(variant, q, L, h_start, h_end, dt, z[0], z[1], S)
-
-        out, partials = jax.vmap(lambda v: jax.jvp(outputs, (z,), (v,)),
-                                 out_axes=(None, -1))(jnp.eye(K, dtype=H.dtype))
-        return (out[S - 1], out[-1]), (out, partials)
-
-    zero = jnp.zeros((), dtype=H.dtype)
-    _, (out, partials) = jax.lax.scan(step, (zero, H[0]), (H[:-1], H[1:], jnp.diff(t)))
-    # r_n: the partials of the inputs other than the state, times their tangents
-    columns = [getattr(p_dot, n) for n in names] + [getattr(losses_dot, n)
-                                                   for n in coefficients]
-    r = sum((partials[..., 2 + i] * c for i, c in enumerate(columns)),
-            jnp.zeros_like(out))
-    if with_H:
-        r = r + partials[..., -2] * H_dot[:-1, None] + partials[..., -1] * H_dot[1:, None]
-    state_rows = jnp.array([S - 1, 2 * S + 1])  # (M, h) at an interval's end
-    A = partials[:, state_rows][:, :, :2]  # (N, 2, 2)
-    r_state = r[:, state_rows]
-
-    def recurrence(ds, ar):
-        A_n, r_n = ar
-        return A_n @ ds + r_n, ds
-
-    ds0 = jnp.stack([jnp.zeros_like(H[0]), H_dot[0] if with_H else jnp.zeros_like(H[0])])
-    _, ds_start = jax.lax.scan(recurrence, ds0, (A, r_state))
-    d_out = jnp.einsum("nok,nk->no", partials[..., :2], ds_start) + r
-    return out, d_out
-
-
+    def interval(self, theta, x: Interval, state, substeps: int, batched: bool):
+        p, losses = theta  # (p: the inner form's parameters)
+        inner_state, h0 = state[..., :-1], state[..., -1]
+        h1 = _end_field(self.inner, substeps, batched, p, losses, x.H0, x.H1, x.dt,
+                        inner_state, h0)
+        out = self.inner.advance(p, h0, h1, inner_state, x.delta, substeps, batched)
+        return jnp.concatenate([out, h1[..., None]], axis=-1)

@@ -24,8 +24,6 @@ slope dH_hyst/dB = 1/μ0 − dM/dB at both ends: 4th order, like RK4), the loss 
 
 from __future__ import annotations
 
-from typing import ClassVar
-
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -34,36 +32,16 @@ from .._typing import Array, Float, Signal
 from ..drive import UNIFORM_TOLERANCE, Drive
 from ..names import DEFAULT_SUBSTEPS
 from ..params import MU0, Parameters, check_parameters, is_concrete
+from .drivers import FluxDriven
 from .jiles_atherton import PAPER_VARIANT, AbstractJAVariant, anhysteretic
 from .losses import Losses, dynamic_energy, dynamic_field
-from .magnetization import magnetization_path
+from .paths import FORM_TYPES, hysteresis_path
+
+__all__ = ["FluxDrive", "FluxDriven", "FluxSimulation", "flux_from_period",
+           "flux_from_record", "simulate_flux", "simulate_flux_unchecked", "sinusoidal_flux"]
 
 #: Largest flux density accepted in a B record, T (a larger value is a unit mistake).
 MAX_FLUX_DENSITY = 100.0
-
-
-class FluxDriven(AbstractJAVariant):
-    """A Jiles–Atherton form driven by B: its slope is dM/dB at (B, M) and its switch
-    distance is the form's own at H_hyst = B/μ0 − M (see the module docstring)."""
-
-    form: AbstractJAVariant
-    scales_with_Ms: ClassVar[bool] = False  # (B/μ0 − M does not scale with Ms)
-
-    @property
-    def parameters(self) -> tuple[str, ...]:
-        return self.form.parameters
-
-    def slope(self, B, M, delta, p: Parameters, pinning=True):
-        chi = self.form.slope(B / MU0 - M, M, delta, p, pinning)
-        return chi / (MU0 * (1.0 + chi))
-
-    def evaluate(self, B, M, delta, p: Parameters, pinning=True):
-        chi, d, rate = self.form.evaluate(B / MU0 - M, M, delta, p, pinning)
-        per_B = 1.0 / (MU0 * (1.0 + chi))  # dH_hyst/dB along the path
-        return chi * per_B, d, rate * per_B
-
-    def irreversible_magnetization(self, B, M, p: Parameters):
-        return self.form.irreversible_magnetization(B / MU0 - M, M, p)
 
 
 class FluxDrive(eqx.Module):
@@ -148,7 +126,7 @@ def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
     S = int(substeps)
     losses = Losses() if losses is None else losses
     B, t = drive.B, drive.t
-    M_sub, k_sub = magnetization_path(params, B, variant=FluxDriven(variant), substeps=S)
+    M_sub, k_sub, _ = hysteresis_path(variant, params, None, B, substeps=S, driver="B")
     zero = jnp.zeros((1,), dtype=B.dtype)
     M = jnp.concatenate([zero, M_sub[:, -1]])
     H_hyst = B / MU0 - M
@@ -181,8 +159,9 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
     if not isinstance(drive, FluxDrive):
         raise TypeError(f"drive must be a jaxhyst.FluxDrive (flux_from_record, "
                         f"sinusoidal_flux …); got {type(drive).__name__}.")
-    if not isinstance(variant, AbstractJAVariant):
-        raise TypeError(f"variant must be a Jiles–Atherton form; got {variant!r}.")
+    if not isinstance(variant, FORM_TYPES):
+        raise TypeError(f"variant must be a model form (EnergyBasedJA(), PlayJA() …); got "
+                        f"{variant!r}.")
     if losses is not None and not isinstance(losses, Losses):
         raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess); got {losses!r}.")
     if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:

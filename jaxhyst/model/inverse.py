@@ -23,46 +23,19 @@ forward model).
 
 from __future__ import annotations
 
-from typing import ClassVar
-
 import jax.numpy as jnp
 import numpy as np
 
 from .._typing import Array, Float
 from ..names import DEFAULT_SUBSTEPS
 from ..params import Parameters
+from .drivers import CHI_FLOOR, MagnetizationDriven
 from .jiles_atherton import PAPER_VARIANT, AbstractJAVariant
-from .magnetization import magnetization_path
+from .paths import hysteresis_path
 
-#: Smallest dM/dH the inverse uses, relative to the anhysteretic slope Ms/(3a) at H = 0.
-CHI_FLOOR = 1e-3
+__all__ = ["CHI_FLOOR", "MagnetizationDriven", "field_for_magnetization",
+           "magnetization_for_magnetostriction", "required_magnetostriction"]
 
-
-class MagnetizationDriven(AbstractJAVariant):
-    """A Jiles–Atherton form driven by M: its "slope" is dH/dM = 1/χ at (M, H) and its
-    switch distance is the form's own (see the module docstring). The driver argument
-    of each method is M (A/m), the state is the field H (A/m)."""
-
-    form: AbstractJAVariant
-    scales_with_Ms: ClassVar[bool] = False  # (the state H does not scale with Ms)
-
-    @property
-    def parameters(self) -> tuple[str, ...]:
-        return self.form.parameters
-
-    def _floored(self, chi, p: Parameters):
-        return jnp.maximum(chi, CHI_FLOOR * p.Ms / (3.0 * p.a))
-
-    def slope(self, M, H, delta, p: Parameters, pinning=True):
-        return 1.0 / self._floored(self.form.slope(H, M, delta, p, pinning), p)
-
-    def evaluate(self, M, H, delta, p: Parameters, pinning=True):
-        chi, d, rate = self.form.evaluate(H, M, delta, p, pinning)
-        per_M = 1.0 / self._floored(chi, p)  # dH/dM along the path
-        return per_M, d, rate * per_M
-
-    def irreversible_magnetization(self, M, H, p: Parameters):
-        return self.form.irreversible_magnetization(H, M, p)
 
 
 def field_for_magnetization(p: Parameters, M: Float[Array, " T"],
@@ -72,8 +45,7 @@ def field_for_magnetization(p: Parameters, M: Float[Array, " T"],
     magnetization ``M`` (A/m), shape (T,), piecewise linear between samples, from the
     demagnetized state: M[0] must be 0 (start with a ramp from 0). Differentiable (the
     time loop's derivative rule) and batched under ``jax.vmap``."""
-    H_sub, _ = magnetization_path(p, M, variant=MagnetizationDriven(variant),
-                                  substeps=substeps)
+    H_sub, _, _ = hysteresis_path(variant, p, None, M, substeps=substeps, driver="M")
     return jnp.concatenate([jnp.zeros((1,), dtype=H_sub.dtype), H_sub[:, -1]])
 
 

@@ -61,16 +61,6 @@ class Losses(eqx.Module):
         self.excess = jnp.asarray(excess, dtype=jnp.float64)
 
 
-def split_losses(params):
-    """(Parameters, Losses or None) of a parameter pytree: `Parameters` alone (rate
-    independent) or the pair ``(Parameters, Losses)``."""
-    if isinstance(params, tuple):
-        if len(params) != 2 or not isinstance(params[1], Losses):
-            raise TypeError("a parameter pair must be (Parameters, jaxhyst.Losses).")
-        return params[0], params[1]
-    return params, None
-
-
 def _signed_sqrt(rate):
     """sign(r)·|r|^(1/2), with a zero derivative at r = 0 instead of an infinite one."""
     nonzero = rate != 0

@@ -2,11 +2,12 @@
 
 Two stages:
 
-1. `magnetization.magnetization_path` — the only sequential part: a ``lax.scan`` over
-   sample intervals that integrates the Jiles–Atherton slope by RK4 in H (``substeps``
-   pieces per interval, the δM switch located exactly), with a custom derivative rule
-   (a linear recurrence of per-interval partial derivatives) that makes every JAX
-   transformation of it cheap.
+1. `paths.hysteresis_path` — the only sequential part: the time loop of
+   `jaxhyst.model.timeloop` (a ``lax.scan`` over sample intervals with a custom
+   derivative rule, a linear recurrence of per-interval partial derivatives, that makes
+   every JAX transformation of it cheap) with the form's interval map: for a
+   Jiles–Atherton variant RK4 in H (``substeps`` pieces per interval, the δM switch
+   located exactly), for a form of pinning cells their exact update.
 2. Vectorized over all substeps: λ and dλ/dt at the substep points, the cubic Hermite
    forcing, and the structural response as a linear recurrence with a 2-vector state
    (`structure.linear_response`).
@@ -34,11 +35,10 @@ from ..params import Parameters, check_parameters, is_concrete
 from ..sharding import vmap_blocked
 from ._batching import blocked_under_vmap
 from .accuracy import SamplingWarning, may_be_coarse, richardson_error, sampling_message
-from .dynamic import dynamic_path
 from .jiles_atherton import PAPER_VARIANT, AbstractJAVariant, anhysteretic
 from .losses import Losses
-from .magnetization import magnetization_path
 from .magnetostriction import magnetostriction
+from .paths import FORM_TYPES, hysteresis_path
 from .structure import (
     hermite_taylor_coefficients,
     periodic_structural_response,
@@ -113,12 +113,9 @@ def simulate_unchecked(
 def _simulate(params, actuator, drive, variant, substeps, losses=None) -> Simulation:
     """The simulation itself (`simulate_unchecked`)."""
     S = _static_substeps(substeps)
-    if losses is None:  # rate independent
-        M_sub, k_sub = magnetization_path(params, drive.H, variant=variant, substeps=S)
-        H_hyst = drive.H
-    else:  # the rate-dependent loop (`jaxhyst.model.dynamic`)
-        M_sub, k_sub, H_hyst = dynamic_path(params, losses, drive.t, drive.H,
-                                            variant=variant, substeps=S)
+    # rate independent, or the rate-dependent loop with losses (`jaxhyst.model.dynamic`)
+    M_sub, k_sub, H_hyst = hysteresis_path(variant, params, drive.t, drive.H, substeps=S,
+                                           losses=losses)
     args = (variant, params, actuator.Ar, drive.t, H_hyst, M_sub, k_sub)
     periodic_from = drive.run_in if drive.periodic else None
     if under_vmap() and not _PLAIN_VMAP:  # its batch rule in blocks
@@ -207,9 +204,10 @@ def _check_inputs(params, actuator, drive, variant, substeps, losses=None) -> No
         raise TypeError(
             f"drive must be jaxhyst.Drive (e.g. Drive(t, H)); got {type(drive).__name__}."
         )
-    if not isinstance(variant, AbstractJAVariant):
-        raise TypeError(f"variant must be a Jiles–Atherton form (an AbstractJAVariant, e.g. "
-                        f"EnergyBasedJA()); got {variant!r}.")
+    if not isinstance(variant, FORM_TYPES):
+        raise TypeError(f"variant must be a model form (a Jiles–Atherton variant such as "
+                        f"EnergyBasedJA(), or a form of pinning cells such as PlayJA()); got "
+                        f"{variant!r}.")
     if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
         raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
     if losses is not None and not isinstance(losses, Losses):

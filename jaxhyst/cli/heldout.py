@@ -1,0 +1,205 @@
+"""Leave one loop out (``identify --joint --leave-one-out``): each loop predicted from a
+fit of the others, for one form or a comparison of forms, beside the baselines a skeptic
+would use — the loop's own fit and the nearest measured condition's fit.
+
+**Fair folds.** A fold sees only its training loops: its box is derived from them alone
+(where the box is derived from the data at all) and widened as a single fit's is where
+the fit ends on it; the held-out loop enters only when it is predicted.
+
+**The comparison.** For each form: every loop fitted alone (its own-fit error, and the
+fits the nearest-condition baseline uses) and every fold. A form's score is the
+geometric mean over the folds of the held-out rms error relative to the loop's size; the
+form with the lowest score predicts held-out loops best and is kept for the final fit.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .spec import CLIError, note
+
+#: The documented candidates compared when no form is named.
+CANDIDATES = ("classic", "energy", "play", "preisach")
+
+
+def _distance(a, b) -> float:
+    """How far two loops' conditions lie apart: |ln of the amplitude ratio| plus |ln of
+    the frequency ratio| plus |ΔT|/10 K, over what both loops carry."""
+    d = abs(math.log(a["amplitude"] / b["amplitude"]))
+    if a.get("frequency") and b.get("frequency"):
+        d += abs(math.log(a["frequency"] / b["frequency"]))
+    if a.get("temperature") is not None and b.get("temperature") is not None:
+        d += abs(a["temperature"] - b["temperature"]) / 10.0
+    return d
+
+
+def _outside(conditions, i) -> bool:
+    """Whether loop i's conditions lie beyond the range of the other loops' (any of
+    amplitude, frequency, temperature): predicting it is an extrapolation."""
+    others = [c for j, c in enumerate(conditions) if j != i]
+    for name in ("amplitude", "frequency", "temperature"):
+        values = [c[name] for c in others if c[name] is not None]
+        v = conditions[i][name]
+        if v is not None and values and not min(values) <= v <= max(values):
+            return True
+    return False
+
+
+def _conditions(spec, loops):
+    """Each loop's {amplitude, frequency, temperature} (the nearest baseline's metric)."""
+    import jaxhyst as jh
+
+    from .problems import loop_conditions
+
+    c = loop_conditions(spec, loops, jh.Actuator(**spec["actuator"]))
+    return [{"amplitude": c.amplitude[i],
+             "frequency": None if c.frequency is None else c.frequency[i],
+             "temperature": None if c.temperature is None else c.temperature[i]}
+            for i in range(len(loops))]
+
+
+def _fit(args, spec, given, loops, method):
+    """A fit of ``loops`` as ``spec`` says, its box from these loops alone (widened
+    where the fit ends on a derived bound): (result, problem, spec as fitted)."""
+    from jaxhyst.io import bounds_to_json
+
+    from .fitting import fit_by_options, widen_derived_box
+    from .problems import build_problem, resolve_bounds
+
+    spec = dict(spec)
+    bounds, extra, where = resolve_bounds(spec, given, loops)
+    spec["bounds"] = bounds_to_json(bounds)
+    spec["extra_bounds"] = {n: list(v) for n, v in extra.items()}
+    problem = build_problem(spec, loops)
+    result = fit_by_options(args, problem, method, None, quiet=True)
+    if where and where.startswith("bounds derived"):
+        result, problem = widen_derived_box(args, spec, given, loops, problem, result,
+                                            quiet=True)
+    return result, problem, spec
+
+
+def _predict(spec, problem, params, loop):
+    """(rms, max |error|, max |data|, extrapolated-warnings) of ``loop`` predicted."""
+    import warnings
+
+    from jaxhyst.identify import ConditionWarning
+
+    from .predictions import error_summary, predict_loops
+
+    with warnings.catch_warnings(record=True) as caught:  # (an extrapolation is part of
+        warnings.simplefilter("always", ConditionWarning)  # the row instead)
+        predicted, data = predict_loops(spec, problem, params, [loop])[0]
+    beyond = [" ".join(str(w.message).split()) for w in caught
+              if issubclass(w.category, ConditionWarning)]
+    for w in caught:
+        if not issubclass(w.category, ConditionWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return {**error_summary(predicted, data), "extrapolated": beyond}
+
+
+def check_comparison(spec, loops, forms) -> None:
+    """One-line errors before any work: too few loops for the folds, a condition law a
+    compared form cannot carry."""
+    from .problems import parse_vary
+
+    L = len(loops)
+    vary = parse_vary(spec.get("vary"))
+    need = 2 + (int(spec.get("vary_degree", 1)) if vary else 0)
+    if L < need:
+        what = (f"a condition law of degree {spec.get('vary_degree', 1)} needs "
+                f"{need - 1} training loops in every fold" if vary else
+                "every fold needs a loop to fit and one to predict")
+        raise CLIError(f"--leave-one-out: {spec['data']} holds {L} loop"
+                       f"{'s' if L != 1 else ''}; {what}, so give at least {need} loops.")
+    own = [n for n in vary if n in ("spread", "a_rev")]
+    plain = [f for f in forms if f not in ("play", "preisach")]
+    if own and plain:
+        raise CLIError(f"--vary {own[0]}: only the forms of pinning cells (play, preisach) "
+                       f"have it, and the comparison includes {plain}; name the forms with "
+                       "--variant play,preisach or vary another parameter.")
+
+
+def leave_one_out(args, spec, given, loops, method, forms) -> dict:
+    """The folds (and own fits) of every form in ``forms``; the kept form's name, every
+    form's rows and score, and whether the run was interrupted or a fit stopped short."""
+    from jaxhyst._interrupt import stop_requested
+
+    conditions = _conditions(spec, loops)
+    table, partial, short = {}, False, []
+    for form in forms:
+        spec_f = {**spec, "variant": form}
+        own = []
+        for lp in loops:
+            if stop_requested():
+                partial = True
+                break
+            single = {**spec_f, "joint": False, "loop": lp.index, "vary": None,
+                      "per_loop": []}
+            note("leave-one-out", f"{form}: loop {lp.index} alone …")
+            result, problem, fitted = _fit(args, single, given, [lp], method)
+            own.append((result, problem, fitted))
+            if not result.success:
+                short.append(f"{form}, loop {lp.index} alone: {result.result}")
+        rows = []
+        for i, held in enumerate(loops):
+            if partial or stop_requested():
+                partial = True
+                break
+            rest = [lp for j, lp in enumerate(loops) if j != i]
+            note("leave-one-out", f"{form}: fitting without loop {held.index} …")
+            result, problem, fitted = _fit(args, spec_f, given, rest, method)
+            if result.result == "interrupted":
+                partial = True
+                break
+            row = {"loop": held.index, **_predict(fitted, problem, result.params, held),
+                   "rms_fitted": result.rms_error, "outcome": result.result,
+                   "outside": _outside(conditions, i)}
+            if not result.success:
+                short.append(f"{form}, fold without loop {held.index}: {result.result}")
+            if i < len(own):
+                row["own_rms"] = own[i][0].rms_error
+                row["ratio"] = row["rms"] / max(row["own_rms"], 1e-300)
+                others = [j for j in range(len(own)) if j != i]
+                if others:
+                    j = min(others, key=lambda j: _distance(conditions[i], conditions[j]))
+                    result_j, problem_j, spec_j = own[j]
+                    near = _predict(spec_j, problem_j, result_j.params, held)
+                    row["nearest_loop"], row["nearest_rms"] = loops[j].index, near["rms"]
+            note("leave-one-out", f"{form}: loop {held.index} predicted, rms "
+                 f"{row['rms']:.4g} ({row['outcome']})")
+            rows.append(row)
+        done = len(rows) == len(loops)
+        score = math.exp(sum(math.log(r["rms"] / r["data_scale"]) for r in rows) /
+                         len(rows)) if done else None
+        table[form] = {"rows": rows, "score": score, "complete": done}
+        if partial:
+            break
+    scored = {f: t["score"] for f, t in table.items() if t["score"] is not None}
+    kept = min(scored, key=scored.get) if scored else None
+    return {"forms": table, "kept": kept, "partial": partial, "stopped_short": short}
+
+
+def held_out_text(held: dict) -> str:
+    """The table of a leave-one-out run, for the terminal."""
+    lines = ["\n  leave one loop out: each loop predicted from a fit of the others (rms; × "
+             "its own fit's rms; the nearest measured loop's fit)"]
+    for form, t in held["forms"].items():
+        cells = []
+        for r in t["rows"]:
+            ratio = f", {r['ratio']:.3g}× own" if "ratio" in r else ""
+            ratio += " (extrapolated)" if r.get("outside") else ""
+            near = (f", nearest (loop {r['nearest_loop']}) {r['nearest_rms']:.4g}"
+                    if "nearest_rms" in r else "")
+            flag = "" if r["outcome"] == "successful" else f" [{r['outcome']}]"
+            cells.append(f"loop {r['loop']}: {r['rms']:.4g}{ratio}{near}{flag}")
+        score = (f"score {t['score']:.4g}" if t["score"] is not None else
+                 "incomplete")
+        lines.append(f"    {form:<10} {score} — " + "; ".join(cells))
+    if held["kept"] and len(held["forms"]) > 1:
+        lines.append(f"    kept: {held['kept']} (the lowest geometric-mean held-out error "
+                     "relative to each loop's size)")
+    for s in held["stopped_short"]:
+        lines.append(f"    STOPPED SHORT: {s}")
+    if held["partial"]:
+        lines.append("    PARTIAL: interrupted; the folds above are the ones that finished")
+    return "\n".join(lines)

@@ -1,0 +1,117 @@
+"""Every hysteresis path of the package, in one place: a form (a Jiles–Atherton variant or
+a form of pinning cells) driven by H, by B or by M, with or without the loss terms, run
+through the one time loop of `jaxhyst.model.timeloop`.
+
+`hysteresis_path` is what `simulate`, `simulate_flux`, the inverse model and the reach
+of a compensation call. A form of your own plugs in as a Jiles–Atherton variant
+(`jaxhyst.AbstractJAVariant`: a slope dM/dH, integrated by RK4) or as a form that builds
+its own time-loop form (like `jaxhyst.model.play.AbstractPlayForm`: ``path_form``,
+``loop_parameters``, ``irreversible_magnetization``, ``parameters``).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from ..params import UNITS, Parameters
+from .drivers import FluxDriven, MagnetizationDriven
+from .dynamic import RateDependentPath
+from .jiles_atherton import AbstractJAVariant
+from .losses import LOSS_NAMES, LOSS_UNITS, Losses
+from .magnetization import JAPath
+from .play import AbstractPlayForm, PlayJA, PreisachJA
+from .timeloop import AbstractPathForm, run_path
+
+#: The kinds of form the model accepts.
+FORM_TYPES = (AbstractJAVariant, AbstractPlayForm)
+
+#: The unit of every parameter name a model may have: the ten, the loss coefficients,
+#: the built-in forms' own.
+PARAMETER_UNITS = {**UNITS, **LOSS_UNITS, **PlayJA.own_parameters,
+                   **PreisachJA.own_parameters}
+#: The built-in forms' own parameters (`own_parameters`).
+OWN_NAMES = tuple(dict.fromkeys([*PlayJA.own_parameters, *PreisachJA.own_parameters]))
+
+#: What drives a path: the field H, the flux density B or the magnetization M.
+DRIVERS = ("H", "B", "M")
+
+
+def path_form(form, driver: str = "H", end_slope_here: bool = False) -> AbstractPathForm:
+    """The time-loop form of ``form`` driven by ``driver`` (`DRIVERS`)."""
+    if isinstance(form, AbstractJAVariant):
+        along = {"H": form, "B": FluxDriven(form), "M": MagnetizationDriven(form)}[driver]
+        return JAPath(along, end_slope_here)
+    return form.path_form(driver, end_slope_here)
+
+
+def loop_parameters(form, p):
+    """The parameters the time loop of ``form`` sees: the `Parameters` ``p`` (and the
+    form itself where it has parameters of its own)."""
+    return p if isinstance(form, AbstractJAVariant) else form.loop_parameters(p)
+
+
+def own_parameters(form) -> dict:
+    """``{name: unit}`` of the parameters a form has of its own (fields of the form, such
+    as the ``spread`` of `jaxhyst.PlayJA`); empty for the Jiles–Atherton variants."""
+    return dict(getattr(form, "own_parameters", {}))
+
+
+def model_values(params) -> dict:
+    """``{name: value}`` (arrays) of every parameter of a model's parameter pytree: the
+    ten, then the loss coefficients and the form's own parameters where it has them."""
+    p, losses, form = split_parameters(params)
+    out = {n: getattr(p, n) for n in Parameters.names}
+    if losses is not None:
+        out.update({n: getattr(losses, n) for n in LOSS_NAMES})
+    if form is not None:
+        out.update({n: getattr(form, n) for n in own_parameters(form)})
+    return out
+
+
+def split_parameters(params):
+    """``(Parameters, Losses or None, form or None)`` of a model's parameter pytree:
+    `Parameters` alone, or a tuple of `Parameters` with `Losses` (the rate-dependent
+    model) and/or a form with parameters of its own (in any order)."""
+    if not isinstance(params, tuple):
+        return params, None, None
+    found = {"p": None, "losses": None, "form": None}
+    for member in params:
+        key = ("p" if isinstance(member, Parameters) else "losses"
+               if isinstance(member, Losses) else "form" if isinstance(member, FORM_TYPES)
+               else None)
+        if key is None or found[key] is not None:
+            raise TypeError("a model's parameters are Parameters, or a tuple of Parameters "
+                            "with jaxhyst.Losses and/or a form with parameters of its own "
+                            f"(e.g. PlayJA); got a tuple holding {type(member).__name__}.")
+        found[key] = member
+    if found["p"] is None:
+        raise TypeError("a tuple of model parameters must hold jaxhyst.Parameters.")
+    return found["p"], found["losses"], found["form"]
+
+
+def hysteresis_path(form, p, t, drive, *, substeps: int, losses=None, driver: str = "H"):
+    """The path of ``form`` at the parameters ``p`` along ``drive`` (shape (T,): H in
+    A/m, B in T or M in A/m by ``driver``; ``t`` in s, needed with ``losses``), from the
+    demagnetized state.
+
+    **Returns:** ``(Y_sub, k_sub, h)``: the response at the substep points u_1 … u_S of
+    each interval, shape (N, S) (M for the drivers H and B, H for M), its slope along the
+    driver at u_0 … u_S with the interval's direction, shape (N, S + 1), and the field
+    the hysteresis sees at the samples, shape (T,) (the drive itself without losses; the
+    field h of the rate-dependent model with them, `jaxhyst.model.dynamic`).
+    """
+    S = int(substeps)
+    theta = loop_parameters(form, p)
+    if losses is None:
+        loop = path_form(form, driver)
+        out = run_path(theta, t, drive, form=loop, substeps=S)
+        Y_sub, k_sub = loop.split(out, theta, drive, S)
+        return Y_sub, k_sub, drive
+    if driver != "H":
+        raise ValueError("the loss terms enter the H-driven path here; the B-driven model "
+                         "adds them to its field (jaxhyst.simulate_flux).")
+    inner = path_form(form, "H", end_slope_here=True)
+    out = run_path((theta, losses), t, drive, form=RateDependentPath(inner), substeps=S)
+    h = jnp.concatenate([drive[:1], out[:, -1]])
+    Y_sub, k_sub = inner.split(out[:, :-1], theta, h, S)
+    return Y_sub, k_sub, h
