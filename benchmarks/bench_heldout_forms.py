@@ -97,7 +97,7 @@ def frequency_family(path, seed=1):
 
 
 def run_cli(path, forms, out, extra=()):
-    cmd = [sys.executable, "-m", "jaxhyst", "identify", path, "--joint", "--leave-one-out",
+    cmd = [sys.executable, "-m", "jaxhyst.cli", "identify", path, "--joint", "--leave-one-out",
            "--variant", forms, "--out", out, "--progress", "0", *extra]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)

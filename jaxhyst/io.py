@@ -284,11 +284,21 @@ def write_columns_csv(path, columns: dict) -> None:
     atomic_write_text(path, ",".join(columns) + "\n" + rows + "\n")
 
 
-def write_simulation_csv(path, sim: Simulation, observed_only: bool = True) -> None:
-    """Write a simulation's signals, one row per sample, SI units in the header names."""
+def write_simulation_csv(path, sim: Simulation, observed_only: bool = True, current=None,
+                         y=None) -> None:
+    """Write a simulation's signals, one row per sample, SI units in the header names;
+    ``current``: the coil current (A) of the written samples, a column after t; ``y``:
+    displacement values to write instead of the simulation's (a simulated sensor's)."""
     start = sim.run_in if observed_only else 0
-    write_columns_csv(path, {name: np.asarray(getattr(sim, f))[start:]
-                             for f, name in SIMULATION_COLUMNS})
+    columns = {name: np.asarray(getattr(sim, f))[start:] for f, name in SIMULATION_COLUMNS}
+    if y is not None:
+        name = next(n for f, n in SIMULATION_COLUMNS if f == "y")
+        columns[name] = np.asarray(y)
+    if current is not None:
+        first = next(iter(columns))
+        columns = {first: columns[first], "I_A": np.asarray(current),
+                   **{k: v for k, v in columns.items() if k != first}}
+    write_columns_csv(path, columns)
 
 
 def write_json(path, obj) -> None:

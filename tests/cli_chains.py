@@ -178,10 +178,13 @@ def measured(d):
 
 
 def compensate(d):
-    """jaxhyst compensate: a sine on Actuator1 (CSV, PNG, JSON); one learning step from
-    a run of a plant whose λs and k differ from the model's (its displacement for the
-    compensating current, simulated here, is the "measurement"), and the plant driven
-    by the next current; a reference beyond the stroke (exit 3)."""
+    """jaxhyst compensate: a sine on Actuator1 (CSV, PNG, JSON); then the chain a lab runs,
+    on a simulated plant whose λs and k differ from the model's: ``simulate --drive`` the
+    written current on the plant (a sensor with 0.3 % noise, its current column the input
+    applied) → ``compensate --measured --state`` → ``simulate --drive`` the next current →
+    ``compensate --measured --state`` again; a reference beyond the stroke (exit 3)."""
+    import json
+
     import numpy as np
 
     import jaxhyst as jh
@@ -190,24 +193,36 @@ def compensate(d):
     from jaxhyst.control.tracking import Tracking, evaluate
 
     base = ["compensate", "--current-limit", "2.5", "--amplitude", "20e-6", "--mean", "45e-6"]
-    first, nxt = os.path.join(d, "first.csv"), os.path.join(d, "next.csv")
-    out = {"first": run([*base, "--csv", first, "--png", os.path.join(d, "first.png"),
-                         "--out", os.path.join(d, "first.json")], os.path.join(d, "first.log"))}
-    plant = jh.Model(jh.TABLE1_TRUE.replace(lambda_s=1.1e-3, k=3500.0), jh.ACTUATOR1)
+    out = {"first": run([*base, "--csv", os.path.join(d, "first.csv"), "--png",
+                         os.path.join(d, "first.png"), "--out", os.path.join(d, "first.json")],
+                        os.path.join(d, "first.log"))}
+    plant = jh.TABLE1_TRUE.replace(lambda_s=1.1e-3, k=3500.0)
+    with open(os.path.join(d, "plant.json"), "w") as fh:
+        json.dump(plant.to_dict(), fh)
+    measure = Tracking.of(jh.Model(plant, jh.ACTUATOR1), sinusoidal_reference(
+        100.0, 20e-6, 45e-6), 16)
     reference = sinusoidal_reference(100.0, 20e-6, 45e-6)
-    measure = Tracking.of(plant, reference, 16)
-    errors = []
-    for path, measured in ((first, os.path.join(d, "measured.csv")), (nxt, None)):
-        if out["first"] != 0:
+    errors, drive = [], os.path.join(d, "first.csv")
+    for k in (1, 2):
+        if out.get("first") != 0 or out.get(f"learn{k - 1}", 0) != 0:
             break
-        table = np.loadtxt(path, delimiter=",", skiprows=1)
-        y = evaluate(measure, table[:, 1])
-        errors.append(rms_error(y, reference.displacement, reference.scale))
-        if measured:
-            np.savetxt(measured, np.c_[table[:, 0], table[:, 1], y], delimiter=",",
-                       header="t [s],I [A],y [m]", comments="")
-            out["learn"] = run([*base, "--measured", measured, "--csv", nxt, "--out",
-                                os.path.join(d, "learn.json")], os.path.join(d, "learn.log"))
+        table = np.loadtxt(drive, delimiter=",", skiprows=1)
+        errors.append(rms_error(evaluate(measure, table[:, 1]), reference.displacement,
+                                reference.scale))
+        run_k = os.path.join(d, f"run{k}.csv")
+        out[f"simulate{k}"] = run(["simulate", "--drive", drive, "--params",
+                                   os.path.join(d, "plant.json"), "--run-in-periods", "4",
+                                   "--noise", "0.003", "--seed", str(k), "--csv", run_k],
+                                  os.path.join(d, f"simulate{k}.log"))
+        drive = os.path.join(d, f"next{k}.csv")
+        out[f"learn{k}"] = run([*base, "--measured", run_k, "--state",
+                                os.path.join(d, "state.json"), "--csv", drive, "--out",
+                                os.path.join(d, f"learn{k}.json")],
+                               os.path.join(d, f"learn{k}.log"))
+    if out.get("learn2") == 0:
+        table = np.loadtxt(drive, delimiter=",", skiprows=1)
+        errors.append(rms_error(evaluate(measure, table[:, 1]), reference.displacement,
+                                reference.scale))
     out["plant_errors"] = errors
     out["beyond"] = run(["compensate", "--current-limit", "1", "--amplitude", "60e-6",
                          "--mean", "50e-6", "--out", os.path.join(d, "beyond.json")],

@@ -228,9 +228,17 @@ def test_compensate_writes_its_files_learns_from_a_plant_and_reports_the_unreach
         assert fh.readline().strip() == "t [s],I [A],H [A/m],y [m]"
     assert table.shape == (200, 4) and np.all(np.abs(table[:, 1]) <= 2.5)
     assert os.path.getsize(os.path.join(d, "first.png")) > 10_000
-    assert status["learn"] == 0, _log(d, "learn.log")
-    before, after = status["plant_errors"]
-    assert before > 0.02 and after < before / 4, status["plant_errors"]
+    for k in (1, 2):  # the lab's chain: simulate (a plant) → compensate --measured
+        assert status[f"simulate{k}"] == 0, _log(d, f"simulate{k}.log")
+        assert status[f"learn{k}"] == 0, _log(d, f"learn{k}.log")
+    with open(os.path.join(d, "run1.csv")) as fh:
+        assert fh.readline().startswith("t_s,I_A,H_A_per_m")  # the current applied
+    with open(os.path.join(d, "state.json")) as fh:
+        state = json.load(fh)
+    assert state["iteration"] == 2 and len(state["reports"]) == 2
+    assert "iteration 2: measured error" in _log(d, "learn2.log")
+    before, after_one, after_two = status["plant_errors"]
+    assert before > 0.02 and after_two < after_one < before / 4, status["plant_errors"]
     assert status["beyond"] == 3, _log(d, "beyond.log")
     with open(os.path.join(d, "beyond.json")) as fh:
         beyond = json.load(fh)

@@ -74,14 +74,28 @@ def add_parser(sub) -> None:
     parser.add_argument("--no-refine", action="store_true",
                         help="the inverse model alone")
     parser.add_argument("--measured", help="a run of the actuator (t, I or H, y at the "
-                        "reference's samples): write the next input of iterative learning")
-    parser.add_argument("--gain", type=POSITIVE, default=1.0,
-                        help="learning gain in (0, 1] for --measured")
+                        "reference's samples; several periods are averaged): write the next "
+                        "input of iterative learning")
+    parser.add_argument("--state", help="with --measured: the learning state (JSON), read "
+                        "if it exists and written after the step, so that learning carries "
+                        "its trust region from run to run")
+    parser.add_argument("--gain", type=POSITIVE, help="a factor in (0, 1] on every learning "
+                        "step (default 1: the norm-optimal step) for --measured or --plant")
+    parser.add_argument("--plant", help="rehearse learning on a simulated actuator with these "
+                        "parameters (table1, table3:<Hz> or a JSON file): --iterations runs")
+    parser.add_argument("--iterations", type=POSITIVE_INT, default=10,
+                        help="with --plant: learning iterations (default 10)")
+    parser.add_argument("--noise", type=NON_NEGATIVE, help="with --plant: measurement noise σ "
+                        "over the reference's peak-to-peak (e.g. 0.005)")
+    parser.add_argument("--delay", type=COUNT, help="with --plant: acquisition delay, samples")
+    parser.add_argument("--mode", help="with --plant: an unmodelled structural mode "
+                        "'FREQUENCY,DAMPING' (Hz, ratio), e.g. '2500,0.05'")
+    parser.add_argument("--seed", type=COUNT, default=0, help="with --plant: of the noise")
     parser.add_argument("--csv", help="write t, input and predicted displacement here")
     parser.add_argument("--png", help="write a figure here (needs matplotlib)")
     parser.add_argument("--out", help="write a JSON summary here")
     parser.add_argument("--json", action="store_true", help="print a JSON summary")
-    parser.add_argument("--periods", type=COUNT, default=1,
+    parser.add_argument("--periods", type=POSITIVE_INT, default=1,
                         help="periods of a periodic input written to --csv (default 1)")
     parser.set_defaults(func=run)
 
@@ -118,10 +132,21 @@ def _conflicts(args) -> None:
     if args.periodic and args.frequency is not None:
         raise CLIError("--periodic (the file is one period) and --frequency (the file holds "
                        "periods of 1/f) exclude each other; give one.")
-    if args.no_refine and args.measured:
-        raise CLIError("--no-refine and --measured exclude each other.")
-    if args.gain > 1 and args.measured:
+    if args.no_refine and (args.measured or args.plant):
+        raise CLIError("--no-refine (the inverse model alone) and learning (--measured, "
+                       "--plant) exclude each other.")
+    if args.measured and args.plant:
+        raise CLIError("--measured learns from a real run, --plant rehearses on a simulated "
+                       "one: give one of them.")
+    if args.gain is not None and not (args.measured or args.plant):
+        raise CLIError(f"--gain {args.gain:g} applies to learning (--measured or --plant).")
+    if args.gain is not None and args.gain > 1:
         raise CLIError(f"--gain {args.gain:g}: the learning gain must lie in (0, 1].")
+    if args.state and not args.measured:
+        raise CLIError("--state carries learning between runs of --measured; give --measured.")
+    rehearsal = [o for o in ("noise", "delay", "mode") if getattr(args, o) is not None]
+    if rehearsal and not args.plant:
+        raise CLIError(f"--{rehearsal[0]} describes the simulated plant: give --plant.")
 
 
 def _model(args):
@@ -129,9 +154,14 @@ def _model(args):
 
     if args.model:
         try:
-            return jh.load_model(args.model)
+            model = jh.load_model(args.model)
         except FileNotFoundError:
             raise CLIError(f"--model {args.model}: no such file.") from None
+        if str(model.actuator.name).startswith("none"):
+            raise CLIError(f"--model {args.model}: a model of a material alone (fitted to M or "
+                           "B loops) has no actuator to compensate; fit displacement data, or "
+                           "give --params and --actuator.")
+        return model
     return jh.Model(parameters_arg(args.params), actuator_arg(args.actuator),
                     variant_from_name(args.variant), args.substeps)
 
@@ -227,8 +257,12 @@ def _measured(args, model, reference):
         u = loop.H - float(model.actuator.Hb)
     y, N = loop.signals["y"], reference.n_samples
     if reference.periodic and u.shape[0] > N and u.shape[0] % N in (0, 1):
-        whole = (u.shape[0] // N) * N  # (a closing sample is dropped)
-        u, y = u[whole - N:whole], y[whole - N:whole]
+        R = u.shape[0] // N  # whole periods (a closing sample is dropped): averaged
+        u, y = np.reshape(u[:R * N], (R, N)), np.reshape(y[:R * N], (R, N))
+        if np.max(np.ptp(u, axis=0)) > 1e-6 * max(float(np.ptp(u)), 1e-300):
+            raise CLIError(f"--measured {args.measured}: its {R} periods were driven by "
+                           "different inputs; give the periods of one input.")
+        u, y = u[0], y if R > 1 else y[0]
     if u.shape[0] != N:
         raise CLIError(f"--measured {args.measured}: {u.shape[0]} samples, but the reference "
                        f"has {N}{' per period' if reference.periodic else ''}; measure at its "
@@ -236,13 +270,77 @@ def _measured(args, model, reference):
     return np.asarray(u, float), np.asarray(y, float)
 
 
+def _plant(args, reference):
+    """The simulated actuator of --plant."""
+    import jaxhyst as jh
+    from jaxhyst.control import SimulatedPlant
+
+    mode = None
+    if args.mode:
+        values = _floats(args.mode, "--mode")
+        if len(values) != 2:
+            raise CLIError(f"--mode {args.mode!r}: give 'FREQUENCY,DAMPING' (Hz, ratio).")
+        mode = tuple(values)
+    model = _model(args)
+    try:
+        return SimulatedPlant(jh.Model(parameters_arg(args.plant), model.actuator,
+                                       model.variant, model.substeps),
+                              reference, noise=args.noise or 0.0, delay=args.delay or 0,
+                              mode=mode, seed=args.seed)
+    except ValueError as err:
+        raise CLIError(f"--plant: {err}") from None
+
+
+def _learn(args, model, reference, options):
+    """The learning branch: one step from --measured (and --state), or --iterations
+    steps on --plant. Returns (learner, state, measured errors)."""
+    import os
+
+    import numpy as np
+
+    from jaxhyst.control import IterativeLearning
+    from jaxhyst.control.learning import state_from_dict
+    from jaxhyst.io import read_json
+
+    learner = IterativeLearning.of(model, reference, gain=args.gain or 1.0, **options)
+    if args.plant:
+        plant = _plant(args, reference)
+        state = learner.init()
+        for _ in range(args.iterations):
+            state = learner.step(state, plant.measure(state.input))
+            note("learning", str(state.reports[-1]))
+            if state.stopped:
+                break
+        return learner, state
+    applied, measured = _measured(args, model, reference)
+    if args.state and os.path.exists(args.state):
+        try:
+            state = state_from_dict(read_json(args.state), reference.n_samples)
+        except ValueError as err:
+            raise CLIError(f"--state {args.state}: {err}") from None
+        if state.stopped:
+            raise CLIError(f"--state {args.state}: learning has stopped ({state.stopped}); "
+                           "remove the file to start again.")
+        if np.max(np.abs(state.input - applied)) > 1e-6 * max(np.ptp(applied), 1e-300):
+            raise CLIError(f"--measured {args.measured}: its input is not the one --state "
+                           f"{args.state} says to apply next; measure that input (or remove "
+                           "the state file to start again from this run).")
+    else:
+        state = learner.state_for(applied)
+    try:
+        state = learner.step(state, measured)
+    except ValueError as err:
+        raise CLIError(f"--measured {args.measured}: {err}") from None
+    return learner, state
+
+
 def run(args) -> int:
     import warnings
 
     import numpy as np
 
-    from jaxhyst.control import IterativeLearning, compensate
-    from jaxhyst.control.compensate import rms_error
+    from jaxhyst.control import compensate
+    from jaxhyst.control.learning import state_to_dict
     from jaxhyst.control.tracking import evaluate
     from jaxhyst.io import write_columns_csv, write_json
     from jaxhyst.progress import TextProgressMeter
@@ -254,12 +352,11 @@ def run(args) -> int:
     reference, what = _reference(args, model, limit)
     options = dict(current_limit=limit, slew_limit=args.slew_limit, tolerance=args.tolerance,
                    max_steps=args.max_steps, progress=TextProgressMeter())
+    state = None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        if args.measured:
-            applied, measured = _measured(args, model, reference)
-            learner = IterativeLearning.of(model, reference, gain=args.gain, **options)
-            state = learner.step(learner.state_for(applied), measured)
+        if args.measured or args.plant:
+            learner, state = _learn(args, model, reference, options)
             result = learner.compensation
             u = state.input
             y = evaluate(learner.residuals.tracking, u)  # (the model, as it learns)
@@ -272,13 +369,18 @@ def run(args) -> int:
             warn(args, " ".join(str(w.message).split()))
     summary = {"model": args.model or f"{args.params}, {model.actuator.name}",
                "reference": what, **result.to_dict()}
-    if args.measured:
-        summary["learning"] = {"measured": args.measured,
-                               "measured_error": rms_error(measured, reference.displacement,
-                                                           reference.scale),
-                               "predicted_error_of_next": rms_error(y, reference.displacement,
-                                                                    reference.scale)}
+    if state is not None:
+        last = state.reports[-1]
+        summary["learning"] = {"source": args.measured or f"plant {args.plant}",
+                               "iterations": state.iteration,
+                               "measured_errors": list(state.errors),
+                               "predicted_error_of_next": last.predicted,
+                               "stopped": state.stopped,
+                               "reports": [vars(r) for r in state.reports]}
     wrote = []
+    if args.state and state is not None:
+        write_json(args.state, state_to_dict(state))
+        wrote.append(args.state)
     if args.png:
         from jaxhyst.plots import plot_compensation
 
@@ -301,13 +403,21 @@ def run(args) -> int:
         write_json(args.out, summary)
         wrote.append(args.out)
     summary["wrote"] = wrote
-    text = [result.summary()]
-    if args.measured:
-        learned = summary["learning"]
-        text.append(f"  learning: measured rms error {learned['measured_error']:.3e}; the "
-                    f"next input is predicted (on the model) at "
-                    f"{learned['predicted_error_of_next']:.3e}")
+    if state is None:
+        text = [result.summary()]
+    else:
+        text = [f"learning on {summary['learning']['source']}, {what}"]
+        text += [f"  {r}" for r in state.reports]
+        if state.stopped:
+            text.append(f"  stopped: {state.stopped}")
+        else:
+            text.append(f"  the next input is written; the plant's error is predicted at "
+                        f"{last.predicted:.3e} of the peak-to-peak")
     text += [f"  wrote {f}" for f in wrote]
     print_result(args, summary, "\n".join(text))
+    if state is not None:  # 3: learning stalled, or its last step was undone
+        bad = (state.stopped and not state.stopped.startswith("at the noise floor")) or \
+            state.reports[-1].action == "undone"
+        return 3 if bad else 0
     stopped_short = not args.no_refine and result.outcome != "successful"
     return 3 if (result.unreachable or stopped_short) else 0

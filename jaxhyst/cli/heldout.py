@@ -153,7 +153,8 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                 break
             row = {"loop": held.index, **_predict(fitted, problem, result.params, held),
                    "rms_fitted": result.rms_error, "outcome": result.result,
-                   "outside": _outside(conditions, i)}
+                   "outside": _outside(conditions, i), "bounds": fitted["bounds"],
+                   "extra_bounds": fitted["extra_bounds"]}
             if not result.success:
                 short.append(f"{form}, fold without loop {held.index}: {result.result}")
             if i < len(own):

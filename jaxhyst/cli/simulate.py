@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from jaxhyst.names import DEFAULT_SUBSTEPS
 
-from .options import FINITE, POSITIVE, POSITIVE_INT, UNITS_HELP, VARIANTS
+from .options import COUNT, FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_INT, UNITS_HELP, VARIANTS
 from .spec import (
     CLIError,
     actuator_arg,
@@ -38,6 +38,14 @@ def add_parser(sub) -> None:
     parser.add_argument("--field-offset", type=FINITE, help="field offset, A/m (default 0)")
     parser.add_argument("--drive", help="CSV/TSV with t and H (or I) columns")
     parser.add_argument("--columns", help="column names for a file without a header")
+    parser.add_argument("--run-in-periods", type=COUNT, help="with --drive: copies of the "
+                        "record simulated before it, for a periodic drive to settle "
+                        "(default 1)")
+    parser.add_argument("--noise", type=NON_NEGATIVE, help="a simulated sensor: Gaussian "
+                        "noise on the written y, σ over its peak-to-peak (e.g. 0.005)")
+    parser.add_argument("--delay", type=COUNT, help="a simulated sensor: y written this many "
+                        "samples late (an acquisition delay)")
+    parser.add_argument("--seed", type=COUNT, help="of --noise (default 0)")
     parser.add_argument("--periods", type=POSITIVE, help="observed periods (default 1)")
     parser.add_argument("--samples-per-period", type=POSITIVE_INT,
                         help="samples per drive period (default 200)")
@@ -69,6 +77,11 @@ def _check_drive_options(args) -> None:
     if args.drive and sine:
         raise CLIError(f"--drive reads the drive from {args.drive}; "
                        f"{', '.join(flag(o) for o in sine)} build a sinusoid instead: give one.")
+    if args.run_in_periods is not None and not args.drive:
+        raise CLIError("--run-in-periods applies to a --drive record (a sinusoid runs in "
+                       "one period).")
+    if args.seed is not None and args.noise is None:
+        raise CLIError("--seed goes with --noise.")
     if args.field_amplitude is not None:
         current = [o for o in ("amplitude", "offset") if getattr(args, o) is not None]
         if current:
@@ -92,8 +105,9 @@ def _drive_from_args(args, actuator):
 
     if args.drive:
         loop = read_loops(args.drive, args.columns)[0]
-        return (jh.drive_from_record(loop.t, loop_field(loop, actuator, args.drive)),
-                f"drive from {args.drive}")
+        periods = 1 if args.run_in_periods is None else args.run_in_periods
+        return (jh.drive_from_record(loop.t, loop_field(loop, actuator, args.drive),
+                                     run_in_periods=periods), f"drive from {args.drive}")
     if args.field_amplitude is not None:
         d = jh.sinusoidal_field(args.frequency, args.field_amplitude, args.field_offset,
                                 periods=args.periods,
@@ -105,7 +119,35 @@ def _drive_from_args(args, actuator):
     return d, f"I = {args.amplitude:.2f} sin(2π·{args.frequency:g} t) + {args.offset:.2f} A"
 
 
+def _current(sim, actuator):
+    """The coil current I = (H − Hb)/n (A) of the observed samples, or None for an
+    actuator without turns per metre."""
+    import numpy as np
+
+    if actuator.n is None:
+        return None
+    return (np.asarray(sim.observed("H")) - float(actuator.Hb)) / float(actuator.n)
+
+
+def _sensed(args, y):
+    """y as a simulated sensor writes it (--delay, --noise), or None for y itself."""
+    import numpy as np
+
+    if not args.noise and not args.delay:
+        return None
+    if args.delay:
+        if args.delay >= y.shape[0]:
+            raise CLIError(f"--delay {args.delay}: the record has {y.shape[0]} samples.")
+        y = np.concatenate([np.full(args.delay, y[0]), y[:-args.delay]])
+    if args.noise:
+        rng = np.random.default_rng(args.seed or 0)
+        y = y + args.noise * float(np.ptp(y)) * rng.standard_normal(y.shape)
+    return y
+
+
 def run(args) -> int:
+    import numpy as np
+
     import jaxhyst as jh
     from jaxhyst.io import write_simulation_csv
 
@@ -129,7 +171,8 @@ def run(args) -> int:
         plot_simulation(sim, args.png, title=f"{actuator.name}, {what}")
         summary["png"] = args.png
     if args.csv:
-        write_simulation_csv(args.csv, sim)
+        write_simulation_csv(args.csv, sim, current=_current(sim, actuator),
+                             y=_sensed(args, np.asarray(sim.observed("y"))))
         summary["csv"] = args.csv
     text = [f"simulated {summary['samples_observed']} observed samples ({actuator.name}, {what})",
             f"  y in [{summary['y_min_m'] * 1e6:.3f}, {summary['y_max_m'] * 1e6:.3f}] μm, "

@@ -9,8 +9,9 @@ from .compensate import (
     UnreachableWarning,
     compensate,
 )
-from .learning import IterativeLearning, LearningState
+from .learning import IterativeLearning, LearningReport, LearningState
 from .limits import InputLimits, InputMap
+from .plant import SimulatedPlant
 from .reach import Reach, Unreachable
 from .reference import (
     Reference,
@@ -25,7 +26,9 @@ __all__ = [
     "InputLimits",
     "InputMap",
     "IterativeLearning",
+    "LearningReport",
     "LearningState",
+    "SimulatedPlant",
     "Reach",
     "Reference",
     "SettlingWarning",

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from .._interrupt import stop_requested
 from ..drive import Drive
 from ..identify import TargetTermination, jacobian_linearized
 from ..model.accuracy import richardson_error
@@ -79,8 +80,10 @@ class Compensation:
     - ``limits`` (`InputLimits`), ``reach`` (`jaxhyst.control.reach.Reach`),
       ``unreachable``: the stretches of the reference beyond the actuator
       (`jaxhyst.control.reach.Unreachable`, empty if it is all reachable).
-    - ``steps`` of the refinement, its ``outcome`` (``successful``, ``max_steps_reached``
-      or ``not refined``), ``seconds``: the wall time of the call (the first call for a
+    - ``steps`` of the refinement, its ``outcome`` (``successful``, ``stalled``: the
+      error stopped falling — what is left is beyond the actuator —,
+      ``max_steps_reached``, ``interrupted`` or ``not refined``), ``seconds``: the wall
+      time of the call (the first call for a
       reference of a new length compiles, ~10 s; later ones reuse the programs),
       ``run_in_periods`` of a periodic reference.
     """
@@ -188,7 +191,7 @@ class Compensation:
                                 for u in self.unreachable]}
 
 
-class _TrackingResiduals(eqx.Module):
+class TrackingResiduals(eqx.Module):
     """The refinement's residuals: (y(u(z)) − r)/(scale·`RESIDUAL_UNIT`), then the
     map's own."""
 
@@ -232,6 +235,39 @@ class _Affine(eqx.Module):
         return (y - self.r) / (self.scale * RESIDUAL_UNIT)
 
 
+#: Levenberg–Marquardt steps of the refinement between two looks at its progress, and
+#: the least relative fall of the rms error per look that counts as progress.
+CHUNK, PROGRESS = 10, 0.01
+
+
+def refine_input(residuals: TrackingResiduals, z0, max_steps: int, target: float):
+    """Levenberg–Marquardt on the tracking error from z0, looked at every `CHUNK` steps:
+    it ends when it reaches the ``target`` Σr² or converges (``successful``), when a
+    look finds the rms error fallen by less than `PROGRESS` (``stalled``: the reference
+    is followed as far as the actuator can, the rest is beyond it), after ``max_steps``
+    (``max_steps_reached``) or on Ctrl-C (``interrupted``). Returns (z, steps,
+    outcome)."""
+    z, steps = jnp.asarray(z0), 0
+    cost = float(jnp.sum(residuals(z) ** 2))
+    target = jnp.asarray(target, dtype=jnp.float64)  # (data: a new tolerance compiles nothing)
+    while True:
+        z_new, ok, n = _least_squares(residuals, z, min(CHUNK, max_steps - steps), _RTOL,
+                                      _ATOL, target)
+        steps += int(n)
+        new_cost = float(jnp.sum(residuals(z_new) ** 2))
+        if new_cost <= cost:
+            z = z_new
+        if bool(ok):
+            return np.asarray(z), steps, "successful"
+        if stop_requested():
+            return np.asarray(z), steps, "interrupted"
+        if steps >= max_steps:
+            return np.asarray(z), steps, "max_steps_reached"
+        if not new_cost < (1.0 - PROGRESS) ** 2 * cost:
+            return np.asarray(z), steps, "stalled"
+        cost = new_cost
+
+
 def _uncompensated(tracking: Tracking, reference: Reference, limits: InputLimits,
                    u_start: np.ndarray) -> np.ndarray:
     """The best input that ignores hysteresis: u = a + b·(r − r̄)/(ptp(r)/2), a and b
@@ -244,8 +280,11 @@ def _uncompensated(tracking: Tracking, reference: Reference, limits: InputLimits
                      jnp.asarray(reference.scale))
     z0 = np.array([(u_start.mean() - limits.mid) / limits.half,
                    0.5 * np.ptp(u_start) / limits.half])
-    z, _, _ = _least_squares(affine, jnp.asarray(z0), 40, 1e-6, 1e-9, 0.0)
-    return np.clip(np.asarray(affine.input(np.asarray(z))), limits.lower, limits.upper)
+    z, _, _ = _least_squares(affine, jnp.asarray(z0), 40, 1e-6, 1e-9, jnp.zeros(()))
+    # within the same limits as the compensated input: the range and the slew rate
+    imap = InputMap(limits, reference.n_samples, reference.dt, reference.periodic)
+    return np.asarray(imap.input(jnp.asarray(imap.coordinates(
+        np.asarray(affine.input(np.asarray(z)))))))
 
 
 def _check_accuracy(tracking: Tracking, u: np.ndarray, scale: float) -> None:
@@ -364,14 +403,13 @@ def compensate(model: Model, reference: Reference, *, current_limit=None,
     if refine and rms_error(y_inverse, r, reference.scale) <= tolerance:
         outcome = "successful"  # (the inverse model alone is within the tolerance)
     elif refine:
-        residuals = _TrackingResiduals(tracking, imap, jnp.asarray(r),
+        residuals = TrackingResiduals(tracking, imap, jnp.asarray(r),
                                        jnp.asarray(reference.scale))
         state = meter.step(state, 2, f"refining {reference.n_samples} input samples")
         target = r.shape[0] * (tolerance / RESIDUAL_UNIT) ** 2
-        z, ok, n = _least_squares(residuals, jnp.asarray(imap.coordinates(u_inverse)),
-                                  int(max_steps), _RTOL, _ATOL, float(target))
-        u = np.asarray(imap.input(z))
-        steps, outcome = int(n), "successful" if bool(ok) else "max_steps_reached"
+        z, steps, outcome = refine_input(residuals, imap.coordinates(u_inverse),
+                                         int(max_steps), float(target))
+        u = np.asarray(imap.input(jnp.asarray(z)))
     y, y_plain = evaluate(tracking, u), evaluate(tracking, u_plain)
     if settled > 1e-6:
         warnings.warn(f"the model's magnetization still moves by {settled:.2g}·Ms per "

@@ -1,26 +1,50 @@
-"""Iterative learning control on the real actuator, with the model as its guide.
+"""Iterative learning control on the real actuator, with the model as its guide — and
+never trusted further than the plant's measurements bear it out.
 
-The model is never exact: the input `compensate` finds for it leaves a tracking error on
-the real actuator. Over repeated periods (or repeated runs of a record) the error is
-measured and the input corrected:
+Over repeated periods (or repeated runs of a record) the displacement is measured and the
+input corrected by a model-based (Newton-type) step inside a **trust region** that the
+measurements steer:
 
-    z_{k+1} = z_k + γ·δ,   δ = the least-norm minimiser of ‖J_k·δ − e_k‖,
+    δz = γ·argmin_least-norm ‖J·δz − Q·e‖,   z_next = z + Q·δz,
 
-with e_k = r − y_measured,k, J_k the model's Jacobian of the displacement with respect to
-the input coordinates z at the input just applied (the model-based, Newton-type update
-of iterative learning control) and γ the learning gain. The step is the least-squares
-solution itself (singular values below `RCOND` of the largest are cut), not a damped
-one: a hysteretic model's most sensitive input directions are rough (a perturbation at
-one sample moves the magnetization from there on), so damping would keep mostly those
-and the update would create reversals the real actuator answers differently; the exact
-step for a smooth error is smooth. The input is a function of z inside the current and
-slew-rate limits
-(`jaxhyst.control.limits.InputMap`), so every input it proposes is within them.
+with e = r − y_measured at the best input so far, J the model's Jacobian of the
+displacement with respect to the input coordinates z (`jaxhyst.control.limits.InputMap`:
+every input is inside the current and slew-rate limits), γ ∈ (0, 1] the step factor and
+Q a zero-phase low-pass **robustness filter** that keeps learning to the band [0, f_c]
+where the model is trusted (Longman, Int. J. Control 73 (2000) 930). The step is the
+least-squares solution itself (singular values below `RCOND` of the largest cut), not a
+damped one: a hysteretic model's most sensitive input directions are rough (a
+perturbation at one sample moves the magnetization from there on), so damping would
+keep mostly those, while the exact step for a smooth error is smooth — which is why the
+error is filtered first: the measurement noise beyond the band never reaches the step.
+
+- **The measurement steers the step.** A step whose measured error is not higher than
+  the one before (beyond the noise) is accepted; when the error fell by at least 3/4 of
+  the fall the model predicted, the step factor γ grows (×1.5, to 1) and the band f_c
+  doubles (up to the Nyquist frequency, or half the band of the last undone step); by
+  less than 1/4, γ halves. A step after which the error *rose* is undone (the next input
+  is built from the best one) and the band narrows: below half the lowest frequency at
+  which the measured error departs most from the model's prediction (an unmodelled mode
+  shows there), or to half with γ halved; the report says where the model is no longer
+  trusted.
+- **Noise.** The measurement noise σ is estimated from repeated measurements of the same
+  input (their scatter) or from the upper half of the error's spectrum (where a tracking
+  error has little power); repeated measurements are averaged. Learning stops at the
+  noise floor (the measured error within 1.5σ): further steps would learn the noise.
+- **Delay.** The lag between the measured displacement and the model's prediction for
+  the applied input is found by cross-correlation; a lag of whole samples is corrected
+  (the record shifted back) and reported, or refused with the shift named
+  (``delay="refuse"``).
+- **Convergence and stalls.** Learning stops when the model predicts no fall larger
+  than the noise (within its band: what is left lies where it is not trusted), after
+  three undone steps in a row, or with a band below the reference's fundamental, and
+  says where it stopped trusting the model.
 
 Use: ``learner = IterativeLearning.of(model, reference, current_limit=…)``; ``state =
 learner.init()``; then repeatedly apply ``state.input``, measure the displacement at the
-reference's samples (in the steady state, for a periodic reference) and call ``state =
-learner.step(state, measured)``.
+reference's samples (in the steady state, for a periodic reference; several periods:
+shape (R, N)) and call ``state = learner.step(state, measured)``; ``state.stopped`` says
+why it stopped, ``state.reports`` what each step did.
 """
 
 from __future__ import annotations
@@ -33,73 +57,216 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..saved import Model
-from .compensate import RESIDUAL_UNIT, Compensation, _TrackingResiduals, compensate, rms_error
+from .compensate import RESIDUAL_UNIT, Compensation, TrackingResiduals, compensate, rms_error
 from .limits import InputMap
 from .reference import Reference
-from .tracking import Tracking
+from .tracking import Tracking, evaluate
 
 #: Singular values of J below this fraction of the largest are cut from a learning step.
 RCOND = 1e-10
+#: The step factor γ's smallest value (a step is shortened no further).
+MIN_FACTOR = 1.0 / 64
+#: Undone steps in a row after which learning stops.
+MAX_REJECTED = 3
+#: Learning stops once the measured error is within this multiple of the noise.
+NOISE_FLOOR = 1.5
+#: Largest acquisition delay searched, as a fraction of the reference's samples.
+MAX_DELAY = 0.1
+
+
+class DelayError(ValueError):
+    """The measured record is shifted against the input (``delay="refuse"``)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class LearningReport:
+    """What one learning step did: the ``iteration``; the measured rms ``error`` and the
+    noise σ estimated (both relative to the reference's peak-to-peak); the ``delay``
+    corrected (whole samples) and the ``lag`` found (samples, > 0: the measurement
+    late against the model's prediction); the ``action`` (``accepted``, ``undone``, ``stopped``)
+    and why; the error the model ``predicted`` for the next input; the ``step`` taken
+    (rms change of the input over its swing); the step ``factor`` γ and the learning
+    ``band`` (Hz) it used."""
+
+    iteration: int
+    error: float
+    noise: float
+    delay: int
+    lag: float
+    action: str
+    reason: str
+    predicted: float | None
+    step: float
+    factor: float
+    band: float
+
+    def __str__(self) -> str:
+        pred = "" if self.predicted is None else f", predicted next {self.predicted:.3e}"
+        delay = (f", delay {self.delay:+d} samples corrected" if self.delay else
+                 f", lag {self.lag:+.2f} samples" if abs(self.lag) >= 0.25 else "")
+        return (f"iteration {self.iteration}: measured error {self.error:.3e} (noise "
+                f"{self.noise:.2e}){delay}; {self.action}: {self.reason}; step "
+                f"{self.step:.2e}{pred}; factor {self.factor:.3g}, band {self.band:.4g} Hz")
 
 
 @dataclasses.dataclass(frozen=True)
 class LearningState:
-    """Where the learning stands: ``z`` the input coordinates, ``input`` (shape (N,), A
-    or A/m) to apply next, ``iteration`` (0 before the first measurement), and
-    ``errors``: the rms tracking error / peak-to-peak of each measurement so far."""
+    """Where the learning stands: ``z`` the input coordinates and ``input`` (shape (N,),
+    A or A/m) to apply next; ``iteration`` (0 before the first measurement); ``errors``:
+    the measured rms error / peak-to-peak of each measurement; ``reports``: a
+    `LearningReport` per step; ``stopped``: why learning stopped (None while it goes
+    on). The rest is the trust region: the best input's coordinates ``best_z``, its
+    error ``best_error`` and measured error signal ``best_e``, the step ``factor``, the
+    learning ``band`` (Hz) and the band it may grow to (``band_limit``: half the band of
+    the last undone step), the undone steps in a row ``rejected``."""
 
     z: np.ndarray
     input: np.ndarray
     iteration: int
     errors: tuple[float, ...]
+    reports: tuple[LearningReport, ...] = ()
+    stopped: str | None = None
+    best_z: np.ndarray | None = None
+    best_error: float | None = None
+    best_e: np.ndarray | None = None
+    factor: float = 1.0
+    band: float = np.inf
+    rejected: int = 0
+    predicted: float | None = None
+    band_limit: float = np.inf
+    predicted_e: np.ndarray | None = None
+
+
+def noise_level(measured: np.ndarray, e: np.ndarray) -> float:
+    """σ of a measurement (its unit): from the scatter of repeated measurements (R, N)
+    of one input (σ of one of them), else from the upper half of the spectrum of the
+    error e (white noise puts as much power there as anywhere)."""
+    if measured.ndim == 2 and measured.shape[0] >= 2:
+        return float(np.sqrt(np.mean(np.var(measured, axis=0, ddof=1))))
+    E = np.fft.rfft(e - np.mean(e))
+    N = e.shape[0]
+    top = E[max(1, E.shape[0] // 2):]
+    return float(np.sqrt(np.mean(np.abs(top) ** 2) / N)) if top.size else 0.0
+
+
+def estimate_delay(measured: np.ndarray, predicted: np.ndarray, periodic: bool) -> float:
+    """The lag in samples (> 0: the measurement comes late) that best aligns
+    ``measured`` with ``predicted``: the peak of their cross-correlation (circular for a
+    period), searched within `MAX_DELAY` of the record, refined between samples by a
+    parabola through the peak and its neighbours."""
+    a, b = measured - measured.mean(), predicted - predicted.mean()
+    N = a.shape[0]
+    reach = max(1, int(MAX_DELAY * N))
+    lags = np.arange(-reach, reach + 1)
+    if periodic:
+        full = np.fft.irfft(np.fft.rfft(a) * np.conj(np.fft.rfft(b)), N)
+        corr = full[lags % N]
+    else:
+        corr = np.array([np.dot(a[k:], b[:N - k]) / (N - k) if k >= 0 else
+                         np.dot(a[:N + k], b[-k:]) / (N + k) for k in lags])
+    i = int(np.argmax(corr))
+    if 0 < i < lags.shape[0] - 1:
+        c0, c1, c2 = corr[i - 1], corr[i], corr[i + 1]
+        curvature = c0 - 2.0 * c1 + c2
+        if curvature < 0:
+            return float(lags[i] + 0.5 * (c0 - c2) / curvature)
+    return float(lags[i])
+
+
+#: A lag is taken for an acquisition delay (and corrected by whole samples) from this
+#: many samples on; smaller ones may be the model's own phase error (a plant 10 % off
+#: the model lags it by up to ~1.3 samples at 200 samples per period: benchmarks/
+#: RESULTS.md), which learning absorbs. The lag found is reported either way.
+DELAY_THRESHOLD = 1.0
+
+
+def shift_back(measured: np.ndarray, lag: int, periodic: bool) -> np.ndarray:
+    """``measured`` (last axis) moved ``lag`` samples earlier (a record's end repeats its
+    last sample)."""
+    if lag == 0:
+        return measured
+    if periodic:
+        return np.roll(measured, -lag, axis=-1)
+    if lag > 0:
+        return np.concatenate([measured[..., lag:], np.repeat(measured[..., -1:], lag, -1)], -1)
+    return np.concatenate([np.repeat(measured[..., :1], -lag, -1), measured[..., :lag]], -1)
+
+
+def low_pass(x: np.ndarray, dt: float, cutoff: float, sigma: float = 0.0) -> np.ndarray:
+    """x without its content above ``cutoff`` (Hz) and, with ``sigma`` (x's noise σ),
+    without the frequencies where it holds less than the noise could (an amplitude below
+    `SIGNIFICANT`·σ·√N: white noise puts that much in a frequency with probability
+    e^-9): zero-phase, by its spectrum."""
+    X = np.fft.rfft(x)
+    f = np.fft.rfftfreq(x.shape[-1], dt)
+    keep = f <= cutoff
+    if sigma > 0:
+        keep &= np.abs(X) >= SIGNIFICANT * sigma * np.sqrt(x.shape[-1])
+        keep[0] = f[0] <= cutoff  # (the mean error is learned: it is no noise)
+    X[..., ~keep] = 0.0
+    return np.fft.irfft(X, x.shape[-1])
+
+
+#: The amplitude of a frequency of the error, in noise σ·√N, below which it is not
+#: learned (it may be noise).
+SIGNIFICANT = 3.0
 
 
 @eqx.filter_jit
-def _learning_step(residuals: _TrackingResiduals, z, e, gain):
-    """z + γ·δ of the module docstring for the measured error e (residual units)."""
-    J = jax.jacfwd(residuals)(z)
-    target = jnp.concatenate([e, -residuals.imap.extra_residuals(z)])  # (map's own → 0)
-    delta, _, _, _ = jnp.linalg.lstsq(J, target, rcond=RCOND)
-    return z + gain * delta
+def _jacobian(residuals: TrackingResiduals, z):
+    return jax.jacfwd(lambda z: residuals(z)[: residuals.r.shape[0]])(z)
 
 
 class IterativeLearning(eqx.Module):
-    """Model-based iterative learning control (see the module docstring).
+    """Iterative learning control guided by the model (see the module docstring).
 
     Build it with `of` (which runs `compensate` on the model for the first input).
-    ``gain``: the learning gain γ in (0, 1] (1: a full Newton step on the model's
-    linearization; lower it for a noisy measurement or a poor model)."""
+    ``gain``: a factor (0, 1] on every step (1: the full step; the trust region shortens
+    steps by itself). ``delay``: ``"correct"`` (default) or ``"refuse"`` a measured record
+    shifted against the input. ``noise``: the sensor's noise σ over the reference's
+    peak-to-peak where it is known (0: a noise-free measurement), else None: estimated
+    from each measurement."""
 
     compensation: Compensation
-    residuals: _TrackingResiduals
+    residuals: TrackingResiduals
     gain: float = eqx.field(static=True, default=1.0)
+    delay: str = eqx.field(static=True, default="correct")
+    noise: float | None = eqx.field(static=True, default=None)
 
     @classmethod
     def of(cls, model: Model, reference: Reference, *, current_limit=None,
-           slew_limit=None, gain: float = 1.0, **options) -> IterativeLearning:
+           slew_limit=None, gain: float = 1.0, delay: str = "correct",
+           noise: float | None = None, **options) -> IterativeLearning:
         """The learning controller of ``model`` for ``reference``; the limits and
         ``options`` are those of `compensate`."""
         g = float(gain)
         if not (np.isfinite(g) and 0 < g <= 1):
             raise ValueError(f"the learning gain must lie in (0, 1]; got {gain!r}.")
+        if delay not in ("correct", "refuse"):
+            raise ValueError(f"delay must be 'correct' or 'refuse'; got {delay!r}.")
+        if noise is not None and not (np.isfinite(noise) and noise >= 0):
+            raise ValueError(f"noise must be None (estimated) or a number >= 0 (σ over the "
+                             f"reference's peak-to-peak); got {noise!r}.")
         comp = compensate(model, reference, current_limit=current_limit,
                           slew_limit=slew_limit, **options)
         tracking = Tracking.of(model, reference, comp.run_in_periods)
         imap = InputMap(comp.limits, reference.n_samples, reference.dt, reference.periodic)
-        residuals = _TrackingResiduals(tracking, imap, jnp.asarray(reference.displacement),
-                                       jnp.asarray(reference.scale))
-        return cls(comp, residuals, g)
+        residuals = TrackingResiduals(tracking, imap, jnp.asarray(reference.displacement),
+                                      jnp.asarray(reference.scale))
+        return cls(comp, residuals, g, delay, None if noise is None else float(noise))
 
     @property
     def reference(self) -> Reference:
         return self.compensation.reference
 
+    def initial_band(self) -> float:
+        """f_c of the first step (Hz): the Nyquist frequency (the measurements narrow it
+        where the model fails)."""
+        return 0.5 / self.reference.dt
+
     def init(self) -> LearningState:
         """The state before the first measurement: the model's compensating input."""
-        imap = self.residuals.imap
-        z = imap.coordinates(self.compensation.input)
-        return LearningState(z=z, input=np.asarray(imap.input(jnp.asarray(z))),
-                             iteration=0, errors=())
+        return self.state_for(self.compensation.input)
 
     def state_for(self, applied) -> LearningState:
         """The state of an input already applied (A or A/m, shape (N,): a run that was
@@ -112,24 +279,203 @@ class IterativeLearning(eqx.Module):
         imap = self.residuals.imap
         z = imap.coordinates(u)
         return LearningState(z=z, input=np.asarray(imap.input(jnp.asarray(z))), iteration=0,
-                             errors=())
+                             errors=(), band=self.initial_band())
 
-    def step(self, state: LearningState, measured) -> LearningState:
-        """The next state, from the displacement ``measured`` (m, shape (N,): at the
-        reference's samples, with ``state.input`` applied)."""
+    def predict(self, state: LearningState) -> np.ndarray:
+        """The model's displacement (m) for ``state.input``."""
+        return evaluate(self.residuals.tracking, state.input)
+
+    def _measurement(self, state, measured):
+        """(the measurement averaged over repeats and shifted back by its delay, the
+        delay corrected, σ (m), the lag found)."""
         y = np.asarray(measured, dtype=np.float64)
         N = self.reference.n_samples
-        if y.shape != (N,):
+        if y.shape[-1:] != (N,) or y.ndim not in (1, 2):
             raise ValueError(f"the measured displacement must have one value per reference "
-                             f"sample ({N}); got shape {y.shape}.")
+                             f"sample ({N}), or repeats of it (R, {N}); got shape {y.shape}.")
         if not np.all(np.isfinite(y)):
-            bad = np.flatnonzero(~np.isfinite(y))[:5].tolist()
+            bad = np.flatnonzero(~np.isfinite(y.reshape(-1)))[:5].tolist()
             raise ValueError(f"the measured displacement is NaN or infinite at samples "
                              f"{bad}; repair the measurement.")
+        periodic = self.reference.periodic
+        mean = y.mean(axis=0) if y.ndim == 2 else y
+        found = estimate_delay(mean, self.predict(state), periodic)
+        lag = int(np.round(found)) if abs(found) >= DELAY_THRESHOLD else 0
+        if lag and self.delay == "refuse":
+            raise DelayError(f"the measured displacement lags the input by {lag} samples "
+                             f"({lag * self.reference.dt:.3g} s): shift it back (or let "
+                             "learning correct it: delay='correct').")
+        y = shift_back(y, lag, periodic)
+        mean = y.mean(axis=0) if y.ndim == 2 else y
         r = np.asarray(self.reference.displacement)
-        e = (r - y) / (self.reference.scale * RESIDUAL_UNIT)
-        z = _learning_step(self.residuals, jnp.asarray(state.z), jnp.asarray(e), self.gain)
-        z = np.asarray(z)
-        error = rms_error(y, r, self.reference.scale)
+        if self.noise is not None:
+            sigma = self.noise * self.reference.scale
+        else:
+            sigma = noise_level(y, r - mean)
+        if y.ndim == 2:
+            sigma /= np.sqrt(y.shape[0])  # (of their average)
+        return mean, lag, sigma, found
+
+    def step(self, state: LearningState, measured) -> LearningState:
+        """The next state, from the displacement ``measured`` (m, shape (N,) or (R, N):
+        at the reference's samples, with ``state.input`` applied)."""
+        if state.stopped is not None:
+            raise ValueError(f"learning has stopped ({state.stopped}); start again with "
+                             "init() or state_for(input) to go on.")
+        y, lag, sigma, found = self._measurement(state, measured)
+        ref = self.reference
+        r, scale = np.asarray(ref.displacement), ref.scale
+        e = r - y
+        error, noise = rms_error(y, r, scale), sigma / scale
+        factor, band, rejected, limit = state.factor, state.band, state.rejected, \
+            state.band_limit
+        nyquist = 0.5 / ref.dt
+        margin = 2.0 * noise / np.sqrt(ref.n_samples) + 1e-3 * (state.best_error or error)
+        if state.best_error is None or error <= state.best_error + margin:
+            action = "accepted"
+            fell = None if state.best_error is None else state.best_error - error
+            expected = None if state.predicted is None or state.best_error is None else \
+                state.best_error - state.predicted
+            ratio = None if fell is None or not expected else fell / expected
+            if ratio is None:
+                why = "the first measurement" if fell is None else "no change predicted"
+            elif ratio >= 0.75:
+                why = f"the error fell as predicted ({ratio:.2g} of the predicted fall)"
+                factor, band = min(1.5 * factor, 1.0), min(2.0 * band, limit, nyquist)
+            elif ratio >= 0.25:
+                why = f"the error fell {ratio:.2g} of the predicted fall"
+            else:
+                factor = max(0.5 * factor, MIN_FACTOR)
+                why = (f"the error fell only {ratio:.2g} of the predicted fall: steps "
+                       "halved")
+            best_z, best_error, best_e, rejected = state.z, error, e, 0
+        else:
+            action, rejected = "undone", rejected + 1
+            failed = self._mispredicted(e, state.predicted_e)
+            if failed is not None and 0.5 * failed < 0.5 * band:
+                band = 0.5 * failed
+                where = (f"it mispredicted the plant most at {failed:.4g} Hz: the model "
+                         f"trusted only below {band:.4g} Hz")
+            else:
+                factor, band = max(0.5 * factor, MIN_FACTOR), 0.5 * band
+                where = f"steps halved, the model trusted only below {band:.4g} Hz"
+            limit = band
+            why = (f"the error rose from {state.best_error:.3e} to {error:.3e}: back to the "
+                   f"best input; {where}")
+            best_z, best_error, best_e = state.best_z, state.best_error, state.best_e
+        errors = (*state.errors, error)
+        stop = None
+        fundamental = 1.0 / (ref.n_samples * ref.dt)
+        if best_error <= NOISE_FLOOR * noise or best_error == 0:
+            stop = f"at the noise floor (error {best_error:.3e}, noise {noise:.2e})"
+        elif rejected >= MAX_REJECTED:
+            stop = (f"stalled: {rejected} steps in a row made it worse; the model is not "
+                    f"trusted above {band:.4g} Hz")
+        elif band < fundamental:
+            stop = (f"stalled: the model is trusted only below {band:.4g} Hz, under the "
+                    f"reference's fundamental {fundamental:.4g} Hz")
+        iteration = state.iteration + 1
+        if stop is not None:
+            report = LearningReport(iteration, error, noise, lag, found, "stopped", stop, None,
+                                    0.0, factor, band)
+            imap = self.residuals.imap
+            return dataclasses.replace(
+                state, z=best_z, input=np.asarray(imap.input(jnp.asarray(best_z))),
+                iteration=iteration, errors=errors, reports=(*state.reports, report),
+                stopped=stop, best_z=best_z, best_error=best_error, best_e=best_e,
+                factor=factor, band=band, rejected=rejected, predicted=None, band_limit=limit)
+        z, step, predicted, predicted_e = self._step(best_z, best_e, factor, band,
+                                                     noise * ref.scale)
+        if action == "accepted" and best_error - predicted <= margin:
+            stop = (f"converged in the band below {band:.4g} Hz: the model predicts no fall "
+                    f"of the error larger than the noise"
+                    + ("" if band >= nyquist else " (what is left lies where it is not "
+                       "trusted)"))
+            report = LearningReport(iteration, error, noise, lag, found, "stopped", stop,
+                                    None, 0.0, factor, band)
+            return dataclasses.replace(
+                state, z=best_z, input=np.asarray(self.residuals.imap.input(
+                    jnp.asarray(best_z))), iteration=iteration, errors=errors,
+                reports=(*state.reports, report), stopped=stop, best_z=best_z,
+                best_error=best_error, best_e=best_e, factor=factor, band=band,
+                rejected=rejected, predicted=None, band_limit=limit)
+        report = LearningReport(iteration, error, noise, lag, found, action, why, predicted,
+                                step, factor, band)
         return LearningState(z=z, input=np.asarray(self.residuals.imap.input(jnp.asarray(z))),
-                             iteration=state.iteration + 1, errors=(*state.errors, error))
+                             iteration=iteration, errors=errors,
+                             reports=(*state.reports, report), stopped=None, best_z=best_z,
+                             best_error=best_error, best_e=best_e, factor=factor,
+                             band=band, rejected=rejected, predicted=predicted,
+                             band_limit=limit, predicted_e=predicted_e)
+
+    def _step(self, z, e, factor, band, sigma):
+        """(the next coordinates, the step's rms change of input over its swing, the error
+        the model predicts for it) from the measured error e (m) at z, its noise σ (m),
+        the step factor γ and the band (Hz)."""
+        ref, imap = self.reference, self.residuals.imap
+        scale = ref.scale * RESIDUAL_UNIT
+        J = np.asarray(_jacobian(self.residuals, jnp.asarray(z)))  # (residual units per z)
+        target = low_pass(e, ref.dt, band, sigma) / scale
+        z_next = z + factor * self.gain * np.linalg.lstsq(J, target, rcond=RCOND)[0]
+        u = np.asarray(imap.input(jnp.asarray(z)))
+        u_next = np.asarray(imap.input(jnp.asarray(z_next)))
+        # the model's prediction of the error after the step (linear in δz)
+        predicted_e = (e / scale - J @ (z_next - z)) * scale
+        predicted = float(np.sqrt(np.mean(predicted_e**2)) / ref.scale)
+        swing = max(float(np.ptp(u)), 1e-300)
+        step = float(np.sqrt(np.mean((u_next - u) ** 2)) / swing)
+        return z_next, step, predicted, predicted_e
+
+    def _mispredicted(self, e, predicted_e) -> float | None:
+        """The lowest frequency (Hz) where the measured error e after a step departs from
+        the model's prediction by at least half the largest departure: where the model
+        failed (an unmodelled mode); None without a prediction."""
+        if predicted_e is None:
+            return None
+        D = np.abs(np.fft.rfft(e - predicted_e))
+        D[0] = 0.0
+        f = np.fft.rfftfreq(e.shape[0], self.reference.dt)
+        if not D.max() > 0:
+            return None
+        return float(f[np.flatnonzero(D >= 0.5 * D.max())[0]])
+
+
+def state_to_dict(state: LearningState) -> dict:
+    """A JSON-able form of ``state`` (to carry learning across runs of the command line)."""
+    out = {}
+    for f in dataclasses.fields(state):
+        v = getattr(state, f.name)
+        if isinstance(v, np.ndarray):
+            v = v.tolist()
+        elif f.name == "reports":
+            v = [dataclasses.asdict(r) for r in v]
+        elif isinstance(v, tuple):
+            v = list(v)
+        out[f.name] = v
+    return out
+
+
+def state_from_dict(d: dict, n: int) -> LearningState:
+    """The `LearningState` written by `state_to_dict` (``n``: the reference's samples; a
+    state of another reference is refused in one line)."""
+    try:
+        arrays = {k: None if d.get(k) is None else np.asarray(d[k], dtype=np.float64)
+                  for k in ("z", "input", "best_z", "best_e", "predicted_e")}
+        state = LearningState(
+            z=arrays["z"], input=arrays["input"], iteration=int(d["iteration"]),
+            errors=tuple(float(e) for e in d["errors"]),
+            reports=tuple(LearningReport(**r) for r in d.get("reports", [])),
+            stopped=d.get("stopped"), best_z=arrays["best_z"],
+            best_error=None if d.get("best_error") is None else float(d["best_error"]),
+            best_e=arrays["best_e"], factor=float(d["factor"]),
+            band=np.inf if d.get("band") is None else float(d["band"]),
+            rejected=int(d["rejected"]),
+            predicted=None if d.get("predicted") is None else float(d["predicted"]),
+            band_limit=np.inf if d.get("band_limit") is None else float(d["band_limit"]),
+            predicted_e=arrays["predicted_e"])
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"not a learning state ({type(err).__name__}: {err}).") from None
+    if state.input.shape != (n,):
+        raise ValueError(f"a learning state of {state.input.shape[0]} samples; the reference "
+                         f"has {n}: it belongs to another reference.")
+    return state

@@ -1,0 +1,113 @@
+"""Leave one loop out from the command line (issue 41): forms compared and the best kept,
+fair folds (a fold's box from its training loops only), each fold's outcome, the
+baselines beside each held-out error, and one-line errors for comparisons that cannot
+be made."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import jaxhyst as jh
+from jaxhyst.cli import main
+from jaxhyst.identify.joint import NO_ACTUATOR
+
+MU0 = 4e-7 * np.pi
+TRUTH = jh.Parameters(Ms=3.5e5, lambda_s=0.0, a=25.0, k=30.0, alpha=1e-5, c=0.3, E=1.0,
+                      Kz=1.0, Mz=1.0, Cz=0.0)
+AMPLITUDES = (40.0, 80.0, 200.0)
+
+
+def _write(path, scale_last=1.0):
+    """Three B(H) loops of the play model (the last one's B times ``scale_last``)."""
+    form = jh.PlayJA(spread=0.6, cells=8)
+    lines = ["loop,H_A_per_m,B_T"]
+    for i, Hm in enumerate(AMPLITUDES):
+        drive = jh.sinusoidal_field(1.0, Hm, 0.0, samples_per_period=48)
+        sim = jh.simulate(TRUTH, NO_ACTUATOR, drive, form, substeps=1)
+        H = np.asarray(drive.observed(drive.H))
+        B = MU0 * (H + np.asarray(drive.observed(sim.M)))
+        B = B * (scale_last if i == len(AMPLITUDES) - 1 else 1.0)
+        lines += [f"{i},{h:.10g},{b:.10g}" for h, b in zip(H, B, strict=True)]
+    path.write_text("\n".join(lines) + "\n")
+
+
+COMMON = ["--joint", "--leave-one-out", "--method", "lm", "--cells", "8", "--progress", "0"]
+
+
+def test_forms_are_compared_and_the_best_predictor_is_kept(tmp_path, capsys):
+    data = tmp_path / "loops.csv"
+    _write(data)
+    out = tmp_path / "r.json"
+    rc = main(["identify", str(data), *COMMON, "--variant", "classic,play",
+               "--max-steps", "100", "--out", str(out)])
+    text = capsys.readouterr().out
+    held = json.loads(out.read_text())["leave_one_out"]
+    assert rc in (0, 3, 4)
+    assert set(held["forms"]) == {"classic", "play"}
+    for form, t in held["forms"].items():
+        assert [r["loop"] for r in t["rows"]] == [0, 1, 2], form
+        for r in t["rows"]:
+            assert r["own_rms"] > 0 and r["nearest_rms"] > 0 and r["ratio"] > 0
+        assert [r["outside"] for r in t["rows"]] == [True, False, True]
+    # loops made by the play model: it predicts them better than the JA form, and is kept
+    assert held["kept"] == "play"
+    assert held["forms"]["play"]["score"] < held["forms"]["classic"]["score"]
+    assert "kept: play" in text and json.loads(out.read_text())["problem"]["variant"] == "play"
+
+
+def test_a_folds_box_does_not_depend_on_the_loop_it_holds_out(tmp_path):
+    boxes = []
+    for scale in (1.0, 1.5):  # only the held-out loop (the last) differs
+        data = tmp_path / f"loops{scale}.csv"
+        _write(data, scale_last=scale)
+        out = tmp_path / f"r{scale}.json"
+        main(["identify", str(data), *COMMON, "--variant", "play", "--max-steps", "3",
+              "--starts", "2", "--out", str(out)])
+        rows = json.loads(out.read_text())["leave_one_out"]["forms"]["play"]["rows"]
+        boxes.append({r["loop"]: r["bounds"] for r in rows})
+    assert boxes[0][2] == boxes[1][2]  # the fold without loop 2
+    assert boxes[0][0] != boxes[1][0]  # a fold that trains on loop 2 sees it
+
+
+def test_a_fold_that_stops_short_sets_exit_3_and_is_named(tmp_path, capsys):
+    data = tmp_path / "loops.csv"
+    _write(data)
+    out = tmp_path / "r.json"
+    rc = main(["identify", str(data), *COMMON, "--variant", "play", "--max-steps", "1",
+               "--starts", "2", "--out", str(out)])
+    captured = capsys.readouterr()
+    held = json.loads(out.read_text())["leave_one_out"]
+    assert rc == 3
+    assert all(r["outcome"] == "max_steps_reached"
+               for r in held["forms"]["play"]["rows"])
+    assert any("fold without loop" in s for s in held["stopped_short"])
+    assert "STOPPED SHORT" in captured.out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--variant", "play", "--loop", "0"], "give one of them"),
+    (["--vary", "spread:log_amplitude", "--variant", "classic,play"],
+     "only the forms of pinning cells"),
+    (["--vary", "k:log_amplitude", "--vary-degree", "2", "--variant", "play"],
+     "give at least 4 loops"),
+    (["--variant", "play,nonsense"], "the forms are"),
+])
+def test_comparisons_that_cannot_be_made_get_one_line(tmp_path, capsys, argv, message):
+    data = tmp_path / "loops.csv"
+    _write(data)
+    assert main(["identify", str(data), *COMMON, *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and message in err, err
+
+
+def test_one_loop_cannot_be_left_out(tmp_path, capsys):
+    data = tmp_path / "one.csv"
+    _write(data)
+    lines = data.read_text().splitlines()
+    data.write_text("\n".join([lines[0]] + [x for x in lines[1:] if x.startswith("0,")]))
+    assert main(["identify", str(data), *COMMON, "--variant", "play"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "holds 1 loop" in err, err
