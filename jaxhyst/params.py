@@ -150,7 +150,7 @@ PHYSICAL_RULES = {
     "k": (lambda v: (v >= 1e-6) & (v <= 1e9),
           "must lie in [1e-6, 1e9] A/m (pinning parameter, of the order of the coercive "
           "field: 0.1 A/m for the softest alloys, 1e6 A/m for the hardest magnets)"),
-    "alpha": (lambda v: np.abs(v) <= 10.0,
+    "alpha": (lambda v: (v >= -10.0) & (v <= 10.0),
               "must lie in [-10, 10] (mean-field coupling; identified values are 1e-5–0.1)"),
     "c": (lambda v: (v >= 0) & (v <= 1), "must lie in [0, 1] (reversibility)"),
     "lambda_s": (lambda v: (v >= 0) & (v <= 0.1),
@@ -161,6 +161,16 @@ PHYSICAL_RULES = {
     "Mz": (lambda v: (v > 0) & (v <= 1e6), "must lie in (0, 1e6] kg (moving mass)"),
     "Cz": (lambda v: (v >= 0) & (v <= 1e13), "must lie in [0, 1e13] N*s/m (damping)"),
 }
+
+
+def physically_valid(p: Parameters):
+    """True (a traced boolean, shape of the leaves) where every parameter lies in its
+    physical range (`PHYSICAL_RULES`): usable inside jit, where values cannot be
+    checked, to turn the signals of an impossible parameter set into NaN."""
+    ok = True
+    for n, (rule, _) in PHYSICAL_RULES.items():
+        ok = ok & rule(getattr(p, n))
+    return ok
 
 
 def at_physical_limit(name: str, value: float) -> bool:

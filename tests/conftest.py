@@ -31,13 +31,19 @@ def pytest_collection_modifyitems(session, config, items):
 
 def pytest_collection_finish(session):
     """Start the subprocess CLI chains as soon as the tests that check them are selected,
-    so that they run alongside the in-process tests instead of after them."""
-    if not any(item.module.__name__ in CHAIN_MODULES for item in session.items):
+    so that they run alongside the in-process tests instead of after them: the docs chain
+    for the tests marked ``docs``, the others for the other tests of the chain modules."""
+    chained = [item for item in session.items if item.module.__name__ in CHAIN_MODULES]
+    if not chained:
         return
+    docs = any(item.get_closest_marker("docs") for item in chained)
+    others = any(not item.get_closest_marker("docs") for item in chained)
+    chains = (("docs",) if docs else ()) + (("reproduce", "sharding", "resume", "measured",
+                                             "compensate") if others else ())
     root = tempfile.mkdtemp(prefix="jaxhyst-cli-")
     script = os.path.join(os.path.dirname(__file__), "cli_chains.py")
     nice = ["nice", "-n", "10"] if shutil.which("nice") else []
-    for chain in ("docs", "reproduce", "sharding", "resume", "measured", "compensate"):
+    for chain in chains:
         d = os.path.join(root, chain)
         os.makedirs(d)
         # niced (the `nice` command: a preexec_fn would fork the multithreaded JAX

@@ -48,6 +48,7 @@ def _output(d, label):
     return _log(d, f"{label}.log") + _log(d, f"{label}.err")
 
 
+@pytest.mark.docs  # (the docs chain runs the pages' commands; checked here)
 def test_simulate_csv_identify_json_recovers_the_parameters():
     """The README's and the getting-started page's own commands (simulate at 50 samples
     per period, identify the CSV, report): they work and print no warning (the estimated
@@ -87,6 +88,7 @@ def test_identify_killed_midway_resumes_from_its_checkpoint():
     assert np.isfinite(res["cost"])
 
 
+@pytest.mark.docs  # (the docs chain runs the pages' commands; checked here)
 def test_reproduce_table1_quick_runs():
     d, status = docs_step("reproduce")
     assert status["table1"] == 0, _output(d, "table1")
@@ -156,6 +158,7 @@ def _check_experiment(study, outcomes=("successful",)):
     return rows
 
 
+@pytest.mark.docs  # (the docs chain runs the pages' commands; checked here)
 def test_reproduce_table3_and_table2_quick():
     d, status = docs_step("reproduce")
     assert status["table3"] == 0, _output(d, "table3")

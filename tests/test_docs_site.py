@@ -21,6 +21,9 @@ import numpy as np
 import pytest
 from test_cli_subprocess import _finished, _log, docs_step
 
+#: The documentation site: its own step of the CI (pytest -m docs), not the default run.
+pytestmark = pytest.mark.docs
+
 pytest.importorskip("mkdocs", reason="the docs extra is not installed (pip install -e '.[docs]')")
 
 

@@ -53,6 +53,7 @@ def _files(d):
                                                   .encode() for i in range(50)),
         "ref_nan": b"t [s],y [um]\n" + b"".join(f"{1e-4 * i},{10 + i % 3}\n".encode()
                                                  for i in range(20)) + b"2e-3,nan\n",
+        "bounds_spread": json.dumps({"spread": [0.1, 2.0]}).encode(),
     }.items():
         f = d / name
         f.write_bytes(content)
@@ -64,6 +65,34 @@ def _files(d):
 
 CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     (["identify", "{binary}"], 2, "is not text"),
+    # issues 41, 42, 44, 46: the new options, and options that do not apply
+    (["compensate", "--current-limit", "2.5", "--gain", "7"], 2, "applies to learning"),
+    (["compensate", "--current-limit", "2.5", "--periods", "0"], 2, "--periods"),
+    (["compensate", "--current-limit", "2.5", "--noise", "0.01"], 2,
+     "--noise describes the simulated plant"),
+    (["compensate", "--current-limit", "2.5", "--state", "{missing}"], 2,
+     "--state carries learning"),
+    (["compensate", "--current-limit", "1e9"], 2, "beyond any laboratory drive"),
+    (["compensate", "--current-limit", "2.5", "--plant", "table1", "--measured", "{ok}"], 2,
+     "give one of them"),
+    (["compensate", "--model", "{bh_model}", "--current-limit", "2.5"], 2,
+     "a model of a material alone"),
+    (["compensate", "--model", "{bh_model}", "--params", "table1"], 2,
+     "leave out --params"),
+    (["identify", "{ok}", "--joint", "--vary-degree", "2"], 2,
+     "--vary-degree 2 shapes the laws of --vary"),
+    (["identify", "{ok}", "--variant", "bogus"], 2, "the forms are"),
+    (["identify", "{ok}", "--variant", "play,classic"], 2, "compared only by"),
+    (["identify", "{ok}", "--losses", "friction"], 2, "--losses 'friction'"),
+    (["identify", "{ok}", "--losses", "eddy"], 2, "derived from M or B data with times"),
+    (["identify", "{ok}", "--joint", "--vary", "eddy:log_amplitude"], 2,
+     "--vary eddy: a loss coefficient"),
+    (["identify", "{ok}", "--joint", "--vary", "spread:log_amplitude"], 2,
+     "energy has no spread"),
+    (["identify", "{ok}", "--joint", "--leave-one-out"], 2, "holds 1 loop"),
+    (["identify", "{ok}", "--bounds", "{bounds_spread}"], 2, "energy does not have"),
+    (["simulate", "--seed", "3"], 2, "--seed goes with --noise"),
+    (["simulate", "--run-in-periods", "2"], 2, "--run-in-periods applies to a --drive"),
     (["identify", "{dir}"], 2, "is a directory"),
     (["identify", "{empty}"], 2, "is empty"),
     (["identify", "{nan}"], 2, "is not a finite number"),
@@ -131,7 +160,12 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    return _files(tmp_path_factory.mktemp("malformed"))
+    found = _files(tmp_path_factory.mktemp("malformed"))
+    from jaxhyst.identify.joint import NO_ACTUATOR
+
+    found["bh_model"] = found["ok"].parent / "bh.eqx"  # a model of a material alone
+    jh.save_model(found["bh_model"], jh.Model(jh.TABLE1_TRUE, NO_ACTUATOR))
+    return found
 
 
 @pytest.mark.parametrize("argv,status,fragment", CLI_TABLE,
@@ -169,6 +203,11 @@ def _api_table(files):
         (lambda: jh.sinusoidal_field(100.0, 1e300), ValueError, "beyond 1e+09 A/m"),
         (lambda: jh.Bounds.from_dict({**{n: (1.0, 2.0) for n in jh.NAMES}, "k": (3.0, 1.0)}),
          ValueError, "lower > upper"),
+        (lambda: jh.Losses(eddy=1e12), ValueError, "Losses.eddy must lie in [0, 1e+06]"),
+        (lambda: jh.sinusoidal_flux(50.0, 100.0), ValueError, "beyond 10 T"),
+        (lambda: jh.PlayJA(spread=-1.0), ValueError, "spread must lie in [0, 10]"),
+        (lambda: jh.PlayJA(cells=0), ValueError, "cells must be an integer in [1, 256]"),
+        (lambda: jh.PreisachJA(a_rev=0.0), ValueError, "a_rev must lie in [1e-6, 1e9]"),
     ]
 
 
@@ -178,6 +217,32 @@ def test_malformed_python_api_inputs(files):
             call()
         msg = str(info.value)
         assert fragment in msg and "\n" not in msg, (i, msg)
+
+
+def test_a_loss_density_needs_a_positive_frequency_and_whole_periods():
+    sim = jh.simulate_flux(jh.TABLE1_TRUE, jh.sinusoidal_flux(1000.0, 0.3,
+                                                             samples_per_period=100))
+    for call, fragment in ((lambda: sim.loss_density(-1000.0), "frequency must be > 0"),
+                           (lambda: sim.loss_density(1000.0, periods=0), "periods must be")):
+        with pytest.raises(ValueError, match=fragment) as info:
+            call()
+        assert "\n" not in str(info.value)
+    assert float(sim.loss_density(1000.0)) > 0
+
+
+def test_impossible_parameters_under_jit_give_nan_not_a_simulation():
+    """Under jit the values cannot be read to refuse them; the signals of a parameter set
+    outside its physical range (c = 2) are NaN instead of a plausible displacement."""
+    import jax
+
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=50)
+
+    @jax.jit
+    def run(c):
+        return jh.simulate_unchecked(jh.TABLE1_TRUE.replace(c=c), jh.ACTUATOR1, drive).y
+
+    assert np.all(np.isnan(np.asarray(run(2.0))))
+    assert np.all(np.isfinite(np.asarray(run(0.18))))
 
 
 def test_simulate_under_a_transformation_called_directly_still_checks_parameters():

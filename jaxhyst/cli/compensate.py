@@ -4,6 +4,9 @@ learning on the real actuator (`jaxhyst.control.IterativeLearning`)."""
 
 from __future__ import annotations
 
+import sys
+
+from jaxhyst._interrupt import stop_requested
 from jaxhyst.names import DEFAULT_SUBSTEPS
 
 from .options import COUNT, FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_INT, UNITS_HELP, VARIANTS
@@ -35,16 +38,16 @@ def add_parser(sub) -> None:
         "predicted displacement (--csv), a figure (--png) and a JSON summary (--out). "
         "Exit 3: part of the reference is beyond the actuator, or the refinement stopped "
         "short (the result is written and says where). " + UNITS_HELP)
-    parser.add_argument("--params", default="table1",
-                        help="table1, table3:<Hz> or a JSON file (a result JSON also works)")
+    parser.add_argument("--params", help="table1 (default), table3:<Hz> or a JSON file (a "
+                        "result JSON also works)")
     parser.add_argument("--model", help="a saved model (jaxhyst identify --save-model) "
                         "instead of --params/--actuator/--variant/--substeps")
-    parser.add_argument("--actuator", default="actuator1",
-                        help="actuator1, actuator2 or a JSON file {Ar, lr, n, Hb}")
-    parser.add_argument("--variant", choices=VARIANTS, default="energy",
-                        help="Jiles–Atherton form (energy: the paper's)")
-    parser.add_argument("--substeps", type=POSITIVE_INT, default=DEFAULT_SUBSTEPS,
-                        help="RK4 substeps per sample")
+    parser.add_argument("--actuator", help="actuator1 (default), actuator2 or a JSON file "
+                        "{Ar, lr, n, Hb}")
+    parser.add_argument("--variant", choices=VARIANTS,
+                        help="model form (default energy: the paper's)")
+    parser.add_argument("--substeps", type=POSITIVE_INT,
+                        help=f"RK4 substeps per sample (default {DEFAULT_SUBSTEPS})")
     parser.add_argument("--reference", default="sine",
                         help="sine, tones, or a CSV file with t and y (or strain) columns")
     parser.add_argument("--frequency", type=POSITIVE,
@@ -115,10 +118,15 @@ def _floats(text: str, option: str) -> list[float]:
 def _conflicts(args) -> None:
     """Options that do not go together are refused, not resolved silently."""
     builder = args.reference in ("sine", "tones")
-    if args.model and (args.params != "table1" or args.actuator != "actuator1"
-                       or args.variant != "energy" or args.substeps != DEFAULT_SUBSTEPS):
-        raise CLIError("--model holds the parameters, actuator, form and substeps; leave "
-                       "out --params, --actuator, --variant and --substeps.")
+    given = [o for o in ("params", "actuator", "variant", "substeps")
+             if getattr(args, o) is not None]
+    if args.model and given:
+        raise CLIError(f"--model holds the parameters, actuator, form and substeps; leave "
+                       f"out --{', --'.join(given)}.")
+    for o, default in (("params", "table1"), ("actuator", "actuator1"), ("variant", "energy"),
+                       ("substeps", DEFAULT_SUBSTEPS)):
+        if getattr(args, o) is None:
+            setattr(args, o, default)
     if args.reference == "sine" and (args.tones or args.phases):
         raise CLIError("--tones and --phases go with --reference tones, not sine.")
     if args.reference == "tones" and (args.amplitude is not None or not args.tones):
@@ -302,17 +310,20 @@ def _learn(args, model, reference, options):
     from jaxhyst.control.learning import state_from_dict
     from jaxhyst.io import read_json
 
-    learner = IterativeLearning.of(model, reference, gain=args.gain or 1.0, **options)
-    if args.plant:
+    if args.plant:  # (every input checked before the long work)
         plant = _plant(args, reference)
+        learner = IterativeLearning.of(model, reference, gain=args.gain or 1.0, **options)
         state = learner.init()
         for _ in range(args.iterations):
+            if stop_requested():
+                break
             state = learner.step(state, plant.measure(state.input))
             note("learning", str(state.reports[-1]))
             if state.stopped:
                 break
         return learner, state
     applied, measured = _measured(args, model, reference)
+    state = None
     if args.state and os.path.exists(args.state):
         try:
             state = state_from_dict(read_json(args.state), reference.n_samples)
@@ -325,7 +336,8 @@ def _learn(args, model, reference, options):
             raise CLIError(f"--measured {args.measured}: its input is not the one --state "
                            f"{args.state} says to apply next; measure that input (or remove "
                            "the state file to start again from this run).")
-    else:
+    learner = IterativeLearning.of(model, reference, gain=args.gain or 1.0, **options)
+    if state is None:
         state = learner.state_for(applied)
     try:
         state = learner.step(state, measured)
@@ -415,6 +427,10 @@ def run(args) -> int:
                         f"{last.predicted:.3e} of the peak-to-peak")
     text += [f"  wrote {f}" for f in wrote]
     print_result(args, summary, "\n".join(text))
+    if stop_requested() or result.outcome == "interrupted":  # (Ctrl-C/SIGTERM)
+        print("  PARTIAL: interrupted; the input written is the best so far",
+              file=sys.stderr)
+        return 130
     if state is not None:  # 3: learning stalled, or its last step was undone
         bad = (state.stopped and not state.stopped.startswith("at the noise floor")) or \
             state.reports[-1].action == "undone"

@@ -46,7 +46,7 @@ def add_parser(sub) -> None:
                         "loops' conditions, e.g. 'k:log_f+T,c:log_amplitude' (features: "
                         "log_f from a frequency column, T from a temperature column, "
                         "log_amplitude from the loop's peak field); the others shared")
-    parser.add_argument("--vary-degree", type=POSITIVE_INT, default=1, choices=(1, 2),
+    parser.add_argument("--vary-degree", type=POSITIVE_INT, choices=(1, 2),
                         help="with --vary: 1 (linear in each feature) or 2 (quadratic)")
     parser.add_argument("--leave-one-out", action="store_true",
                         help="with --joint: also fit every loop but one and predict the one "
@@ -147,7 +147,10 @@ def run(args) -> int:
             "variant": None, "cells": args.cells, "losses": _losses(args.losses),
             "joint": args.joint,
             "per_loop": [n.strip() for n in (args.per_loop or "").split(",") if n.strip()],
-            "vary": args.vary, "vary_degree": args.vary_degree}
+            "vary": args.vary, "vary_degree": args.vary_degree or 1}
+    if args.vary_degree is not None and not args.vary:
+        raise CLIError(f"--vary-degree {args.vary_degree} shapes the laws of --vary; give "
+                       "--vary (e.g. 'k:log_f').")
     for flag, value in (("--per-loop", spec["per_loop"]), ("--vary", args.vary),
                         ("--leave-one-out", args.leave_one_out)):
         if value and not args.joint:

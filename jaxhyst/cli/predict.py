@@ -64,7 +64,7 @@ def run(args) -> int:
                  "(identify --vary); it has no effect on the prediction.")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConditionWarning)
-        predictions = predict_loops(spec, fitted, params, loops, overrides)
+        predictions = predict_loops(spec, fitted, params, loops, overrides, source)
     for w in caught:
         if issubclass(w.category, ConditionWarning):
             warn(args, str(w.message))
@@ -85,8 +85,8 @@ def run(args) -> int:
     expected = _expected_error(saved)
     fitted_range = _fitted_range(spec, records_of(fitted).actuator)
     for lp, row in zip(loops, rows, strict=True):
-        row["extrapolation"] = _outside(spec, lp, records_of(fitted).actuator, fitted_range,
-                                        overrides)
+        row["extrapolation"] = _outside({**spec, "data": source}, lp,
+                                        records_of(fitted).actuator, fitted_range, overrides)
         if expected is not None:
             row["expected_relative_error"] = expected["extrapolated" if row["extrapolation"]
                                                       else "interpolated"]

@@ -32,14 +32,15 @@ def error_summary(predicted, data) -> dict:
             "data_scale": float(np.max(np.abs(data)))}
 
 
-def predict_loops(spec, fitted, params, loops, conditions=None) -> list:
+def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> list:
     """The model's prediction and the data of each loop of ``loops`` (`jaxhyst.io.Loop`,
     of the fitted data or new ones), from a fit of ``fitted`` (the problem built from
     ``spec``) at ``params``: [(predicted, data or None)] in the fitted output's unit. A
     condition model is evaluated at each loop's conditions (``conditions``:
     {"frequency": …, "temperature": …} overriding the file's); shared joint parameters
     are used as they are; a single-loop fit's parameters likewise. The model is the
-    fit's: its form, loss coefficients and the form's own parameters."""
+    fit's: its form, loss coefficients and the form's own parameters. ``source``: the
+    file the loops come from (for the messages; the fitted data file by default)."""
     import jax
     import numpy as np
 
@@ -54,7 +55,13 @@ def predict_loops(spec, fitted, params, loops, conditions=None) -> list:
     out = []
     for lp in loops:
         if isinstance(fitted, jh.ConditionProblem):
-            tree = fitted.at(params, loop_conditions(spec, [lp], actuator, conditions))
+            try:
+                tree = fitted.at(params, loop_conditions({**spec, "data": source or
+                                                          spec["data"]}, [lp], actuator,
+                                                         conditions))
+            except ValueError as err:
+                raise CLIError(f"{source or spec['data']}: {err} (a column, or --frequency "
+                               "and --temperature)") from None
             tree = jax.tree.map(lambda x: np.asarray(x)[0], tree)
         elif np.ndim(split_parameters(params)[0].Ms) == 1:
             per_loop = [np.asarray(x) for x in jax.tree.leaves(params)]
@@ -66,7 +73,7 @@ def predict_loops(spec, fitted, params, loops, conditions=None) -> list:
             tree = params
         p, losses, form = split_parameters(tree)
         name = next((q for q, k in SIGNAL_OUTPUTS.items() if k == kind.name), None)
-        drive = loop_drive(spec, lp, name or "B", actuator)
+        drive = loop_drive(spec, lp, name or "B", actuator, source)
         sim = jh.simulate(p, actuator, drive, records.variant if form is None else form,
                           records.substeps, losses)
         predicted = np.asarray(drive.observed(kind.of(sim)))

@@ -272,6 +272,15 @@ def build_problem(spec: dict, loops=None):
             raise CLIError("--vary and --per-loop both say how parameters differ between "
                            "loops; use one of them.")
         if vary:  # (checked before the records: a missing column is the one message)
+            for name in vary:
+                if name in LOSS_NAMES and name not in (spec.get("losses") or []):
+                    raise CLIError(f"--vary {name}: a loss coefficient of the rate-dependent "
+                                   f"model; identify it too with --losses {name} (the file "
+                                   "needs times).")
+                if name in OWN_NAMES and name not in own_parameters(form):
+                    raise CLIError(f"--vary {name}: {spec.get('variant') or 'energy'} has no "
+                                   f"{name}; it is a parameter of the forms play (spread) "
+                                   "and preisach (spread, a_rev).")
             conditions = loop_conditions(spec, loops, actuator)
             for name, feats in vary.items():
                 for f in feats:

@@ -191,15 +191,18 @@ def loop_field(loop, actuator, source):
     return actuator.n * loop.I + actuator.Hb
 
 
-def loop_drive(spec, loop, out, actuator):
+def loop_drive(spec, loop, out, actuator, source=None):
+    """The drive of a loop (``source``: the file it was read from; the spec's data file
+    by default)."""
     import jaxhyst as jh
     from jaxhyst.identify.measured import monotone_branches
     from jaxhyst.identify.outputs import output_kind
     from jaxhyst.io import SIGNAL_OUTPUTS
 
-    H = loop_field(loop, actuator, spec["data"])
+    source = source or spec["data"]
+    H = loop_field(loop, actuator, source)
     if loop.t is None and output_kind(SIGNAL_OUTPUTS[out]).needs_time:
-        raise CLIError(f"{spec['data']} has no time column t; {out} depends on the structural "
+        raise CLIError(f"{source} has no time column t; {out} depends on the structural "
                        "dynamics, which need times (only M or B loops may omit t).")
     if output_kind(SIGNAL_OUTPUTS[out]).magnetic_only:
         H = monotone_branches(H)  # reversals below 5 % of the range are noise

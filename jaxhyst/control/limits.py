@@ -27,6 +27,9 @@ import numpy as np
 
 from .._typing import Array, Float
 
+#: The largest input limit accepted (A of current or A/m of field): a larger one is a unit
+#: mistake (1e6 A of coil current, or 1e6 A/m, lies beyond any laboratory drive).
+MAX_INPUT = 1e6
 #: Width of the band in which `sat` approaches ±1.
 BAND = 0.05
 #: ‖s̄‖ = √(s̄² + η²): smooth at s̄ = 0.
@@ -78,6 +81,10 @@ class InputLimits(eqx.Module):
             lower, upper = float(values[0]), float(values[1])
         if slew is not None:
             slew = _positive(slew, "slew-rate limit", f"{unit}/s")
+        if max(abs(lower), abs(upper)) > MAX_INPUT:
+            raise ValueError(f"current limit {max(abs(lower), abs(upper)):g} {unit} is beyond "
+                             f"any laboratory drive (|input| <= {MAX_INPUT:g}); check its unit "
+                             f"({unit}).")
         return cls(float(lower), float(upper), slew, given)
 
     @property

@@ -121,9 +121,11 @@ class ConditionModel:
     degree: int = 1
     reference: tuple = ()
     fitted_range: tuple = ()
+    units: tuple = ()
 
     def __init__(self, varying: Mapping | tuple = (), degree: int = 1,
-                 reference: Mapping | tuple = (), fitted_range: Mapping | tuple = ()):
+                 reference: Mapping | tuple = (), fitted_range: Mapping | tuple = (),
+                 units: Mapping | tuple = ()):
         pairs = []
         for name, feats in dict(varying).items():
             feats = (feats,) if isinstance(feats, str) else tuple(feats)
@@ -141,6 +143,7 @@ class ConditionModel:
         object.__setattr__(self, "degree", int(degree))
         object.__setattr__(self, "reference", tuple(dict(reference).items()))
         object.__setattr__(self, "fitted_range", tuple(dict(fitted_range).items()))
+        object.__setattr__(self, "units", tuple(dict(units).items()))
 
     @property
     def varies(self) -> dict:
@@ -190,9 +193,14 @@ class ConditionModel:
         return np.stack(cols, axis=-1) if cols else np.zeros((conditions.n_records, 0))
 
     def warn_outside(self, conditions: Conditions) -> None:
-        """A `ConditionWarning` for each condition outside the fitted range, saying how far."""
+        """A `ConditionWarning` for each condition outside the fitted range, saying how far
+        (a ``ValueError`` naming a condition the model needs and the records lack)."""
         for f in self.features:
             raw, (lo, hi) = conditions.raw(f), dict(self.fitted_range)[f]
+            if raw is None:
+                what, unit = FEATURES[f]
+                raise ValueError(f"the fitted model varies with the {what}, and the records "
+                                 f"to predict carry none ({unit}); give it.")
             for v in raw:
                 if lo <= v <= hi:
                     continue
@@ -201,9 +209,15 @@ class ConditionModel:
                     far = f"{min(abs(v - lo), abs(v - hi)):.3g} K"
                 else:
                     far = f"a factor {max(v / hi, lo / v):.3g}"
-                warnings.warn(f"a prediction at {what} {v:g} {unit} lies outside the fitted "
-                              f"range {lo:g}–{hi:g} {unit} ({far} beyond it): an "
-                              "extrapolation.", ConditionWarning, stacklevel=3)
+                warnings.warn(f"a prediction at {what} {v:g} {self._unit(f)} lies outside the "
+                              f"fitted range {lo:g}–{hi:g} {self._unit(f)} ({far} beyond "
+                              "it): an extrapolation.", ConditionWarning, stacklevel=3)
+
+    def _unit(self, feature: str) -> str:
+        """The unit of a feature's condition ("A/m or T" for an amplitude: the one of the
+        records fitted, A/m for fields, T for flux densities, when known)."""
+        return dict(self.units).get(feature, "A/m" if feature == "log_amplitude" else
+                                    FEATURES[feature][1])
 
     def evaluate(self, coefficients: Mapping, X):
         """Per-record values {name: (L,)} of every parameter the coefficients hold, at
@@ -314,9 +328,11 @@ class ConditionProblem(AbstractProblem):
         feats = self.form.features
         ref = np.asarray(self.reference).tolist()
         rng = [tuple(r) for r in np.asarray(self.fitted_range).tolist()]
+        amplitude = "T" if isinstance(self.records, FluxProblem) else "A/m"
         return ConditionModel(self.form.varies, self.form.degree,
                               dict(zip(feats, ref, strict=True)),
-                              dict(zip(feats, rng, strict=True)))
+                              dict(zip(feats, rng, strict=True)),
+                              {"log_amplitude": amplitude})
 
     @property
     def output(self) -> str:
@@ -374,7 +390,7 @@ def per_record_space(bounds: Bounds, n_records: int, losses: Mapping | None = No
     records problem is built with before a `ConditionProblem` replaces its parameters
     (with ``losses``: the loss coefficients too; with a ``form`` that has parameters of
     its own, those too)."""
-    box = None if losses is None else {n: (0.0, 1e9) for n in LOSS_NAMES}
+    box = None if losses is None else {n: (0.0, 1e6) for n in LOSS_NAMES}
     names = [*NAMES, *(LOSS_NAMES if losses is not None else ()),
              *(own_parameters(form) if form is not None else ())]
     return ParameterSpace.for_model(bounds, losses=box, form=form, n_loops=n_records,

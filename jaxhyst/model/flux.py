@@ -31,7 +31,7 @@ import numpy as np
 from .._typing import Array, Float, Signal
 from ..drive import UNIFORM_TOLERANCE, Drive
 from ..names import DEFAULT_SUBSTEPS
-from ..params import MU0, Parameters, check_parameters, is_concrete
+from ..params import MU0, Parameters, check_parameters, is_concrete, physically_valid
 from .drivers import FluxDriven
 from .jiles_atherton import PAPER_VARIANT, AbstractJAVariant, anhysteretic
 from .losses import Losses, dynamic_energy, dynamic_field
@@ -40,8 +40,9 @@ from .paths import FORM_TYPES, hysteresis_path
 __all__ = ["FluxDrive", "FluxDriven", "FluxSimulation", "flux_from_period",
            "flux_from_record", "simulate_flux", "simulate_flux_unchecked", "sinusoidal_flux"]
 
-#: Largest flux density accepted in a B record, T (a larger value is a unit mistake).
-MAX_FLUX_DENSITY = 100.0
+#: Largest flux density accepted in a B record, T: four times the highest saturation of
+#: any material (Fe–Co, 2.45 T); a larger value is a unit or column mistake.
+MAX_FLUX_DENSITY = 10.0
 
 
 class FluxDrive(eqx.Module):
@@ -105,7 +106,15 @@ class FluxSimulation(eqx.Module):
         return getattr(self, name)[..., self.run_in:]
 
     def loss_density(self, frequency, periods: int = 1):
-        """Power loss per volume, W/m³: f·∮H dB/periods over the observed samples."""
+        """Power loss per volume, W/m³: f·∮H dB/periods over the observed samples;
+        ``frequency`` (Hz) > 0, ``periods`` (the observed periods) an integer >= 1."""
+        if is_concrete(frequency) and not np.all(np.asarray(frequency) > 0):
+            raise ValueError(f"loss_density: frequency must be > 0 Hz (the drive's); got "
+                             f"{frequency!r}.")
+        if isinstance(periods, bool) or not isinstance(periods, (int, np.integer)) or \
+                periods < 1:
+            raise ValueError(f"loss_density: periods must be an integer >= 1 (the observed "
+                             f"periods); got {periods!r}.")
         return frequency * self.cycle_energy / periods
 
 
@@ -141,6 +150,8 @@ def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
         + dynamic_energy(jnp.diff(B), jnp.diff(t), losses)
     energy = jnp.sum(per_interval[drive.run_in:])
     Man, _ = anhysteretic(H_hyst, M, params)
+    bad = ~physically_valid(params)  # (NaN for an impossible parameter set, under jit too)
+    H, energy = jnp.where(bad, jnp.nan, H), jnp.where(bad, jnp.nan, energy)
     return FluxSimulation(t=t, B=B, H=H, H_hyst=H_hyst, M=M, Man=Man, cycle_energy=energy,
                           run_in=drive.run_in)
 

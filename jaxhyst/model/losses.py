@@ -36,6 +36,11 @@ LOSS_NAMES = ("eddy", "excess")
 LOSS_UNITS = {"eddy": "A*s/(m*T)", "excess": "A*s^0.5/(m*T^0.5)"}
 
 
+#: The largest loss coefficient accepted (SI): a lamination of copper 0.1 m thick has
+#: k_e = σd²/12 ≈ 5e4; a larger value is a unit mistake.
+MAX_COEFFICIENT = 1e6
+
+
 class Losses(eqx.Module):
     """The loss coefficients (SI):
 
@@ -54,9 +59,11 @@ class Losses(eqx.Module):
         for name, value in (("eddy", eddy), ("excess", excess)):
             if is_concrete(value):
                 v = np.asarray(value, dtype=np.float64)
-                if not (np.all(np.isfinite(v)) and np.all(v >= 0)):
-                    raise ValueError(f"Losses.{name} must be a finite number >= 0; got "
-                                     f"{value!r}.")
+                if not (np.all(np.isfinite(v)) and np.all(v >= 0)
+                        and np.all(v <= MAX_COEFFICIENT)):
+                    raise ValueError(f"Losses.{name} must lie in [0, {MAX_COEFFICIENT:g}] "
+                                     f"({LOSS_UNITS[name]}; a 0.1 m copper lamination's eddy "
+                                     f"coefficient is 5e4); got {value!r}.")
         self.eddy = jnp.asarray(eddy, dtype=jnp.float64)
         self.excess = jnp.asarray(excess, dtype=jnp.float64)
 

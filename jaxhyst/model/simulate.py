@@ -31,7 +31,7 @@ from .._typing import Array, Bool, Float, Signal
 from ..actuator import Actuator
 from ..drive import Drive
 from ..names import DEFAULT_SUBSTEPS
-from ..params import Parameters, check_parameters, is_concrete
+from ..params import Parameters, check_parameters, is_concrete, physically_valid
 from ..sharding import vmap_blocked
 from ._batching import blocked_under_vmap
 from .accuracy import SamplingWarning, may_be_coarse, richardson_error, sampling_message
@@ -123,6 +123,10 @@ def _simulate(params, actuator, drive, variant, substeps, losses=None) -> Simula
             _after_the_loop, uniform=drive.uniform, S=S, periodic_from=periodic_from)(*args)
     else:  # (the same without the wrappers: less to trace for grad)
         M, Man, Mirr, lam, y, v = _after_the_loop(*args, drive.uniform, S, periodic_from)
+    # parameters outside their physical range (only known here at run time, under jit)
+    # give NaN signals, never a plausible-looking simulation
+    bad = ~physically_valid(params)
+    M, y, v, lam = (jnp.where(bad, jnp.nan, x) for x in (M, y, v, lam))
     return Simulation(t=drive.t, H=drive.H, H_hyst=H_hyst, M=M, Man=Man, Mirr=Mirr, lam=lam,
                       y=y, velocity=v, strain=y / actuator.lr, run_in=drive.run_in)
 
