@@ -13,10 +13,14 @@ from .analysis.identifiability import identifiability
 from .identify.signal import sampling_error
 
 
-def attach_report(result, problem, report: bool = True):
+def attach_report(result, problem, report: bool | str = True):
     """``result`` with its identifiability report (or the reason it is missing) and the
     model's error at the data's sampling (`jaxhyst.identify.signal.sampling_error`;
-    ``result.warnings`` says so where it exceeds the documented accuracy)."""
+    ``result.warnings`` says so where it exceeds the documented accuracy). ``report``:
+    True (the linear intervals, unchecked: no re-fits),
+    ``"profile"`` (intervals checked along the profile likelihood and moved where the
+    quadratic fails: `jaxhyst.analysis.profile_intervals`; a few batches of constrained
+    re-fits) or False."""
     if result.result == "nonfinite":
         return result
     error = sampling_error(problem, result.params)
@@ -26,7 +30,8 @@ def attach_report(result, problem, report: bool = True):
     if not report:
         return result
     try:
-        return result.with_report(identifiability(problem, result.params))
+        return result.with_report(identifiability(problem, result.params,
+                                                  profile=report == "profile"))
     except (ValueError, FloatingPointError) as err:
         return result.with_report(None, error=str(err))
 
@@ -37,7 +42,8 @@ def _with_report(fn):
         return attach_report(fn(problem, *args, **kwargs), problem, report)
 
     wrapped.__doc__ = (fn.__doc__ or "") + (
-        "\n\n    ``report`` (keyword, default True): attach the identifiability report.")
+        "\n\n    ``report`` (keyword, default True): attach the identifiability report "
+        "(``\"profile\"``: with intervals checked along the profile likelihood).")
     return wrapped
 
 

@@ -25,7 +25,7 @@ import numpy as np
 from ._files import write_bytes
 from .actuator import Actuator
 from .drive import Drive
-from .model.flux import FluxDrive, FluxSimulation, simulate_flux
+from .model.flux import FluxDrive, FluxSimulation, simulate_flux, simulate_flux_unchecked
 from .model.jiles_atherton import (
     AbstractJAVariant,
     ClassicJA,
@@ -34,10 +34,11 @@ from .model.jiles_atherton import (
     VenkataramanJA,
 )
 from .model.losses import Losses
+from .model.paths import model_values, own_parameters
 from .model.play import AbstractPlayForm, PlayJA, PreisachJA
 from .model.simulate import Simulation, simulate, simulate_unchecked
 from .names import DEFAULT_SUBSTEPS
-from .params import NAMES, UNITS, Parameters
+from .params import NAMES, UNITS, Parameters, is_concrete
 
 FORMAT = "jaxhyst-model"
 VERSION = 1
@@ -82,7 +83,34 @@ class Model(eqx.Module):
     def simulate_flux(self, drive: FluxDrive) -> FluxSimulation:
         """The B-driven model for the flux density of ``drive`` (`jaxhyst.simulate_flux`:
         H(t) and the energy per cycle)."""
-        return simulate_flux(self.params, drive, self.variant, self.losses, self.substeps)
+        return simulate_flux(self.params, drive, self.variant, self.substeps, self.losses)
+
+    def simulate_flux_unchecked(self, drive: FluxDrive) -> FluxSimulation:
+        """`simulate_flux` without input checks, for use under jit/vmap/grad."""
+        return simulate_flux_unchecked(self.params, drive, self.variant, self.substeps,
+                                       self.losses)
+
+    def __repr__(self) -> str:
+        """The model with its values (not the arrays' shapes)."""
+        values = model_values(self._tree())
+        if not is_concrete(self.params):
+            shown = "traced values"
+        elif all(np.ndim(v) == 0 for v in values.values()):
+            shown = ", ".join(f"{n}={float(v):.6g}" for n, v in values.items())
+        else:
+            shown = f"{np.shape(self.params.Ms)[0]} parameter sets (one per loop)"
+        losses = "" if self.losses is None else ", rate-dependent"
+        return (f"Model({type(self.variant).__name__}: {shown}; {self.actuator.name}; "
+                f"{self.substeps} substeps{losses})")
+
+    def _tree(self):
+        """The model's parameter pytree (`jaxhyst.model.paths.split_parameters`)."""
+        members = [self.params]
+        if self.losses is not None:
+            members.append(self.losses)
+        if own_parameters(self.variant):
+            members.append(self.variant)
+        return members[0] if len(members) == 1 else tuple(members)
 
 
 def _versions() -> dict:
@@ -96,6 +124,9 @@ def save_model(path: str | os.PathLike, model: Model, **meta) -> None:
     entries added to the header (the data it was fitted to, its error …)."""
     if not isinstance(model, Model):
         raise TypeError(f"save_model needs a jaxhyst.Model; got {type(model).__name__}.")
+    if not is_concrete(model):
+        raise TypeError("save_model writes values: call it outside jax.jit, jax.grad and "
+                        "vmap (here the model holds traced arrays).")
     header = {"format": FORMAT, "version": VERSION, "variant": type(model.variant).__name__,
               "substeps": model.substeps, "units": UNITS,
               "parameter_shape": list(np.shape(model.params.Ms)),

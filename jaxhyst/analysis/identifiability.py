@@ -41,9 +41,11 @@ import numpy as np
 
 from ..identify.result import bound_status
 from ..params import NAMES
-from .intervals import bound_aware_intervals, box_in_x, held_at_bounds, x_side
+from .intervals import bound_aware_intervals, box_in_x, x_side
+from .misspecification import misspecification
 from .nullspace import MAX_EXPONENT, PREFER_FIX, analyse
-from .report import Z95, IdentifiabilityReport, _unit
+from .profile_intervals import refine_intervals
+from .report import IdentifiabilityReport, _unit
 
 #: float64 resolution: the smallest noise level estimated for a group (relative to its
 #: scale), so that data an exact fit reproduces bit for bit do not give σ = 0.
@@ -99,8 +101,8 @@ def whitened_log_jacobian(problem, x0, scale):
 _log_jacobian = eqx.filter_jit(whitened_log_jacobian)
 
 
-def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float = 0.5
-                    ) -> IdentifiabilityReport:
+def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float = 0.5,
+                    profile: bool = True) -> IdentifiabilityReport:
     """Identifiability report of ``problem``'s free parameters at ``params`` (see the module
     docstring).
 
@@ -111,6 +113,14 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     - ``null_tol``: σ/σ₁ below which a direction counts as structurally null.
     - ``max_rel_se``: relative standard error above which an identifiable parameter is
       flagged as poorly determined.
+    - ``profile``: check the linear intervals along the profile likelihood and move the
+      ends where the quadratic approximation fails (`jaxhyst.analysis.profile_intervals`:
+      a few vmapped batches of constrained re-fits; default). False: the linear
+      intervals alone (the report a fit attaches by default: no re-fits).
+
+    The residuals are tested for misspecification (`jaxhyst.analysis.misspecification`):
+    where the model cannot explain the data the report says so and its intervals are
+    widened.
     """
     space = problem.space
     names = tuple(space.names)
@@ -124,6 +134,13 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
         raise ValueError("The model output or its Jacobian is not finite at these parameters; "
                          "the identifiability analysis needs a point where the model runs.")
     J, e, sigma, disagree = _declared_sigma_check(problem, J, e, np.asarray(sigma))
+    # (an exact fit of noise-free data: its residuals are round-off, where no cost is
+    # quadratic and no residual test means anything)
+    exact = any(g.sigma is None and float(s) <= 1e-9 * float(np.abs(g.scale))
+                for g, s in zip(problem.groups, sigma, strict=True))
+    misspecified, inflation = (None, 1.0) if exact else misspecification(problem, e,
+                                                                          len(names))
+    J = J / np.sqrt(inflation)  # (the covariance, and every interval, widened)
     lower, upper = np.asarray(space.lower), np.asarray(space.upper)
     status = bound_status(values, lower, upper)
     at_bound = {names[i]: (b, float(lower[i] if b == "lower" else upper[i]))
@@ -146,7 +163,7 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
         std_errors=a["std_errors"], intervals=a["intervals"], correlation=a["correlation"],
         cov_log=a["cov_log"], null_space=a["null_space"], jacobian=J, residuals=e,
         scale=scale, max_rel_se=max_rel_se, at_bound=at_bound, bounds=(lower, upper),
-        interval_methods=methods,
+        interval_methods=methods, misspecified=misspecified,
     )  # fmt: skip
     for c in a["combos"]:
         if max(abs(p) for p in c.values()) > MAX_EXPONENT:
@@ -156,61 +173,9 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
         if np.isfinite(combo["value"]) and combo["std_error"] is not None and \
                 np.isfinite(combo["std_error"]):
             combos.append(combo)
-    # (an exact fit of noise-free data: its intervals span round-off, where no cost is
-    # quadratic — the check would only measure the round-off)
-    exact = any(g.sigma is None and float(s) <= 1e-9 * float(np.abs(g.scale))
-                for g, s in zip(problem.groups, sigma, strict=True))
-    if not exact:
-        rep.linearity.update(_linearity(problem, rep, e, sigma))
+    if profile and not exact:
+        rep.unbounded = refine_intervals(problem, params, rep, inflation=inflation)
     return rep
-
-
-def _linearity(problem, rep, e, sigma) -> dict:
-    """{parameter or combination text: (Δχ² at the lower end, at the upper end) / the
-    linear model's} along the linearised profile path to each end of its interval: 1 where
-    the cost is quadratic there; far from 1 the interval is not to be trusted
-    (`IdentifiabilityReport.nonlinear`)."""
-    names = rep.names
-    C = held_at_bounds(np.asarray(rep.cov_log), [names.index(n) for n in rep.at_bound or {}])
-    directions, labels = [], []
-    for i, name in enumerate(names):
-        if rep.intervals.get(name) is None or name in (rep.at_bound or {}) or not C[i, i] > 0:
-            continue
-        directions.append(C[:, i] / np.sqrt(C[i, i]))
-        labels.append(name)
-    for c in rep.combinations:
-        p = np.array([float(c["exponents"].get(nm, 0.0)) for nm in names])
-        var = float(p @ C @ p)
-        if var > 0:
-            directions.append(C @ p / np.sqrt(var))
-            labels.append(c["text"])
-    if not directions:
-        return {}
-    D = np.array(directions)
-    lo, hi = np.asarray(rep.bounds[0]), np.asarray(rep.bounds[1])
-    # each end of the path, or where the path leaves the box if it does so first (the
-    # interval's end is then the box's): the linear model's Δχ² there is (fraction·1.96)²
-    x0 = np.asarray(rep.values, dtype=float)
-    points, fractions = [], []
-    for d in D:
-        for s in (-1, 1):
-            step = s * Z95 * d * np.asarray(rep.scale)
-            room = np.where(step > 0, hi - x0, np.where(step < 0, lo - x0, np.inf))
-            with np.errstate(divide="ignore", invalid="ignore"):
-                limit = np.where(step != 0, room / step, np.inf)
-            frac = float(np.clip(np.min(limit), 0.0, 1.0))
-            points.append(np.clip(x0 + frac * step, lo, hi))
-            fractions.append(frac)
-    whitening = np.repeat(np.asarray(sigma), [g.size for g in problem.groups])
-    r = np.asarray(_residuals_at(problem, jnp.asarray(np.array(points))))
-    chi2 = np.sum((r / whitening) ** 2, axis=1) + _prior_chi2(problem, np.array(points))
-    base = float(np.sum(e**2))  # (data and prior rows, as chi2)
-    expected = (np.array(fractions) * Z95) ** 2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # a path that starts on the box's face has no room to test: 1 (nothing to say)
-        ratio = np.where(expected > 1e-6 * Z95**2, (chi2 - base) / expected, 1.0)
-    delta = ratio.reshape(len(labels), 2)
-    return {label: (float(d[0]), float(d[1])) for label, d in zip(labels, delta, strict=True)}
 
 
 def _prior_chi2(problem, points) -> np.ndarray:

@@ -209,3 +209,9 @@ def x_side(side: str, scale: float) -> str:
     if scale >= 0:
         return side
     return "upper" if side == "lower" else "lower"
+
+
+def path_point(values, scale, logs, x) -> np.ndarray:
+    """The parameters (SI) at the relative coordinates x = d ln|θ| of the report:
+    θ·exp(x) for those of one sign by construction (``logs``), θ + x·θ₀ for the others."""
+    return np.where(logs, values * np.exp(np.where(logs, x, 0.0)), values + x * scale)

@@ -95,6 +95,8 @@ class IdentifiabilityReport:
     bounds: tuple | None = None  # (lower, upper) of the free values, SI
     interval_methods: dict | None = None  # {name: key of intervals.METHODS or None}
     linearity: dict = field(default_factory=dict)  # {name or combination: (lo, hi) ratios}
+    misspecified: str | None = None  # what the residual tests found (misspecification)
+    unbounded: dict = field(default_factory=dict)  # {name: "below"/"above"}: the box ends
 
     @property
     def identifiable(self) -> tuple[str, ...]:
@@ -114,16 +116,17 @@ class IdentifiabilityReport:
             out[n] = None if se is None else se / abs(self.scale[i])
         return out
 
-    def nonlinear(self, tolerance: float = 0.5) -> tuple[str, ...]:
-        """Parameters and combinations whose 95 % interval the linear analysis does not
-        describe: along the linearised profile to an end of the interval the cost rises
-        by less than (1 − ``tolerance``) or more than 1/(1 − ``tolerance``) times the 3.84
-        the linear model predicts (`linearity`). Their intervals are then only a guide:
-        a profile likelihood (`jaxhyst.analysis.profile_likelihood`, ``jaxhyst report
-        --profile NAME``) follows the model."""
-        lo, hi = 1.0 - tolerance, 1.0 / (1.0 - tolerance)
-        return tuple(k for k, (a, b) in self.linearity.items()
-                     if not (lo <= a <= hi and lo <= b <= hi))
+    def nonlinear(self, tolerance: float = 0.2) -> tuple[str, ...]:
+        """Parameters whose linear 95 % interval the profile likelihood does not bear
+        out: an end of it lies more than ``tolerance`` (a fraction of its distance from
+        the fit) from where the profile crosses the threshold — read from the profile's
+        Δχ² at the linear end, r times the threshold, as |1/√r − 1| (`linearity`,
+        measured along the profile by `jaxhyst.analysis.profile_intervals`; empty for a
+        report without the profile check). Their intervals are the profile's."""
+        def off(r):
+            return not r > 0 or abs(1.0 / np.sqrt(r) - 1.0) > tolerance
+
+        return tuple(k for k, (a, b) in self.linearity.items() if off(a) or off(b))
 
     def poorly_determined(self, max_rel_se: float | None = None) -> tuple[str, ...]:
         """Identifiable parameters whose relative standard error exceeds ``max_rel_se``."""
@@ -152,10 +155,13 @@ class IdentifiabilityReport:
         if not ok:
             return {"exponents": dict(exponents), "text": text, "value": value,
                     "identifiable": False, "std_error": None, "interval": None}
-        se = abs(value) * float(np.sqrt(max(p @ self.cov_log @ p, 0.0)))
+        s_log = float(np.sqrt(max(p @ self.cov_log @ p, 0.0)))  # of ln|Π θ^p|
+        se = abs(value) * s_log
+        # on the log scale: a product keeps its sign (a product of positive parameters
+        # stays positive, α̃·Ms keeps α̃'s sign)
+        ends = sorted((value * np.exp(-Z95 * s_log), value * np.exp(Z95 * s_log)))
         return {"exponents": dict(exponents), "text": text, "value": value,
-                "identifiable": True, "std_error": se,
-                "interval": (value - Z95 * se, value + Z95 * se)}
+                "identifiable": True, "std_error": se, "interval": tuple(ends)}
 
     def suggest_fixed(self, max_rel_se: float | None = None) -> tuple[str, ...]:
         """Parameters to fix so that the rest are identifiable and determined to
@@ -201,7 +207,8 @@ class IdentifiabilityReport:
             "combinations": [{**c, "interval": None if c["interval"] is None
                               else [float(c["interval"][0]), float(c["interval"][1])]}
                              for c in self.combinations],
-            "sigma": self.sigma, "dof": self.dof,
+            "sigma": self.sigma, "dof": self.dof, "misspecified": self.misspecified,
+            "unbounded": dict(self.unbounded),
             "group_sigma": {k: {"sigma": v[0], "estimated": v[1]}
                             for k, v in self.group_sigma.items()},
             "parameters": {n: {"value": float(v), "unit": u, "std_error": f(self.std_errors[n]),
@@ -245,8 +252,11 @@ class IdentifiabilityReport:
             tag = "  poorly determined" if n in poor else ""
             if self.bounds is not None and (lo <= self.bounds[0][i] or hi >= self.bounds[1][i]):
                 tag += "  (the box ends the interval)"
-            if (self.interval_methods or {}).get(n) == "bound-aware":
+            method = (self.interval_methods or {}).get(n)
+            if method == "bound-aware":
                 tag += "  (profile with the active bounds)"
+            elif method == "profile":
+                tag += "  (from the profile likelihood: the quadratic fails here)"
             lines.append(f"  {n:<9}= {v:.6g} ± {se:.2g} {u}  (95 %: {lo:.6g} … {hi:.6g})"
                          f"{tag}")
         for c in self.combinations:
@@ -255,10 +265,14 @@ class IdentifiabilityReport:
                          f"(95 %: {lo:.6g} … {hi:.6g})  identifiable combination")
         for k in self.nonlinear():
             a, b = self.linearity[k]
-            lines.append(f"  NOT LINEAR: along {k}'s interval the cost rises by {a:.2g} and "
-                         f"{b:.2g} times the 3.84 of the linear analysis at its two ends: "
-                         "that interval is only a guide; profile it (jaxhyst report "
-                         f"--profile NAME, jaxhyst.analysis.profile_likelihood)")
+            lines.append(f"  NOT LINEAR: at the ends of {k}'s linear interval its profile "
+                         f"rises {a:.2g} and {b:.2g} times the threshold: the interval above "
+                         "is the profile's")
+        for k, side in self.unbounded.items():
+            lines.append(f"  {k}: the data do not bound it {side} inside the box (its "
+                         "interval ends at the box's)")
+        if self.misspecified:
+            lines.append(f"  MISSPECIFIED: {self.misspecified}")
         return "\n".join(lines)
 
 

@@ -107,7 +107,8 @@ def fit_by_options(args, problem, method, start, quiet: bool = False):
         return jh.run_hybrid(problem, method, seed=args.seed, settings=settings,
                              progress=meter, checkpoint=None if quiet else args.checkpoint,
                              checkpoint_every=args.checkpoint_every,
-                             resume=args.resume and not quiet)
+                             resume=args.resume and not quiet,
+                             report=False if quiet else "profile")
     meter = TextProgressMeter(every=0, interval=2.0) if progress else False
     if args.start or args.starts <= 1:  # one start: an earlier result, or the box centre
         start = _start_params(args, start, problem) if args.start else np.full(n, 0.5)
@@ -115,12 +116,12 @@ def fit_by_options(args, problem, method, start, quiet: bool = False):
             note(method, "one start " + (f"from {args.start}" if args.start
                                          else "at the centre of the box"))
         return jh.solve(problem, start, solver=method, max_steps=args.max_steps or 200,
-                        progress=meter)
+                        progress=meter, report=False if quiet else "profile")
     starts = np.random.default_rng(args.seed).uniform(0.0, 1.0, (args.starts, n))
     if progress:
         note(method, f"{len(starts)} random starts in one vmapped batch")
     return jh.multistart(problem, starts, solver=method, max_steps=args.max_steps or 200,
-                         progress=meter)
+                         progress=meter, report=False if quiet else "profile")
 
 
 def refine_from(args, problem, params, what: str = "from the previous fit",
@@ -134,7 +135,7 @@ def refine_from(args, problem, params, what: str = "from the previous fit",
     meter = TextProgressMeter(every=0, interval=2.0) if args.progress and not quiet else \
         False
     return jh.solve(problem, params, solver="lm", max_steps=args.max_steps or 200,
-                    progress=meter)
+                    progress=meter, report=False if quiet else "profile")
 
 
 #: Observed samples per loop above which a multi-start local fit first runs on every

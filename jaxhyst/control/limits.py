@@ -58,12 +58,20 @@ def sat_inverse(y: np.ndarray) -> np.ndarray:
 
 class InputLimits(eqx.Module):
     """The input's range [``lower``, ``upper``] (A, or A/m for a field-driven actuator)
-    and its slew-rate limit ``slew`` (unit/s; None: none). Build it with `of`."""
+    and its slew-rate limit ``slew`` (unit/s; None: none). Build it with `of`. The values
+    are data (another limit compiles nothing); whether there is a slew limit is
+    structure."""
 
-    lower: float = eqx.field(static=True)
-    upper: float = eqx.field(static=True)
-    slew: float | None = eqx.field(static=True, default=None)
+    lower: Float[Array, ""]
+    upper: Float[Array, ""]
+    slew: Float[Array, ""] | None = None
     given: bool = eqx.field(static=True, default=True)  # False: derived, not the user's
+
+    def __init__(self, lower, upper, slew=None, given: bool = True):
+        self.lower = jnp.asarray(lower, dtype=jnp.float64)
+        self.upper = jnp.asarray(upper, dtype=jnp.float64)
+        self.slew = None if slew is None else jnp.asarray(slew, dtype=jnp.float64)
+        self.given = bool(given)
 
     @classmethod
     def of(cls, limit, slew=None, *, unit: str = "A", given: bool = True) -> InputLimits:
@@ -81,24 +89,24 @@ class InputLimits(eqx.Module):
             lower, upper = float(values[0]), float(values[1])
         if slew is not None:
             slew = _positive(slew, "slew-rate limit", f"{unit}/s")
-        if max(abs(lower), abs(upper)) > MAX_INPUT:
+        if max(abs(float(lower)), abs(float(upper))) > MAX_INPUT:
             raise ValueError(f"current limit {max(abs(lower), abs(upper)):g} {unit} is beyond "
                              f"any laboratory drive (|input| <= {MAX_INPUT:g}); check its unit "
                              f"({unit}).")
         return cls(float(lower), float(upper), slew, given)
 
     @property
-    def mid(self) -> float:
+    def mid(self):
         return 0.5 * (self.lower + self.upper)
 
     @property
-    def half(self) -> float:
+    def half(self):
         return 0.5 * (self.upper - self.lower)
 
     def describe(self, unit: str) -> str:
-        text = f"[{self.lower:.4g}, {self.upper:.4g}] {unit}"
+        text = f"[{float(self.lower):.4g}, {float(self.upper):.4g}] {unit}"
         if self.slew is not None:
-            text += f", |d/dt| <= {self.slew:.4g} {unit}/s"
+            text += f", |d/dt| <= {float(self.slew):.4g} {unit}/s"
         return text + ("" if self.given else " (no limit given: derived from the inverse)")
 
 
@@ -120,11 +128,15 @@ class InputMap(eqx.Module):
 
     limits: InputLimits
     n: int = eqx.field(static=True)
-    dt: float = eqx.field(static=True)
+    dt: Float[Array, ""]  # (data: a reference of another frequency compiles nothing)
     periodic: bool = eqx.field(static=True)
 
+    def __init__(self, limits: InputLimits, n: int, dt, periodic: bool):
+        self.limits, self.n, self.periodic = limits, int(n), bool(periodic)
+        self.dt = jnp.asarray(dt, dtype=jnp.float64)
+
     @property
-    def step(self) -> float | None:
+    def step(self):
         """The largest step of w per sample (slew·dt/half), or None without a slew limit."""
         if self.limits.slew is None:
             return None
@@ -132,7 +144,7 @@ class InputMap(eqx.Module):
 
     @property
     def size(self) -> int:
-        if self.step is None:
+        if self.limits.slew is None:
             return self.n
         return self.n + 1 if self.periodic else self.n
 
@@ -165,11 +177,12 @@ class InputMap(eqx.Module):
         the range, then its steps limited sample by sample (over three passes of a period,
         so that its closing step is limited too). For a start, not a result."""
         lim = self.limits
-        margin = 1e-4 * lim.half
-        u = np.clip(np.asarray(u, dtype=np.float64), lim.lower + margin, lim.upper - margin)
+        lower, upper, half = float(lim.lower), float(lim.upper), float(lim.half)
+        margin = 1e-4 * half
+        u = np.clip(np.asarray(u, dtype=np.float64), lower + margin, upper - margin)
         if lim.slew is None:
             return u
-        d = lim.slew * self.dt * (1.0 - 1e-4)
+        d = float(lim.slew) * float(self.dt) * (1.0 - 1e-4)
         passes = 3 if self.periodic else 1
         target = np.tile(u, passes)
         out = np.empty_like(target)
@@ -182,9 +195,9 @@ class InputMap(eqx.Module):
         """Coordinates z whose input is close to ``u`` (exact for a `feasible` u away from
         the band at the edges of the range)."""
         lim = self.limits
-        w = sat_inverse((self.feasible(u) - lim.mid) / lim.half)
+        w = sat_inverse((self.feasible(u) - float(lim.mid)) / float(lim.half))
         if self.step is None:
             return w
         closed = np.append(w, w[0]) if self.periodic else w
-        v = sat_inverse(np.diff(closed) / self.step)
+        v = sat_inverse(np.diff(closed) / float(self.step))
         return np.concatenate([w[:1], v])

@@ -117,7 +117,7 @@ class FluxProblem(AbstractProblem):
         def one(params, drive):
             p, losses, form = split_parameters(params)
             return simulate_flux_unchecked(p, drive, self.variant if form is None else form,
-                                           losses, self.substeps)
+                                           self.substeps, losses)
 
         return jax.vmap(one, in_axes=(0 if per_record else None, 0))(params, self.drive)
 

@@ -19,6 +19,11 @@ import numpy as np
 
 #: The documented accuracy: error of a signal relative to its size.
 ACCURACY = 1e-5
+#: The rate-dependent model's documented accuracy (its field balance is second order in
+#: the sample step: ~3e-4 of max|B| at 200 samples per period; docs/theory.md).
+RATE_ACCURACY = 1e-3
+#: The B-driven model's documented accuracy: H relative to its range.
+FLUX_ACCURACY = 1e-4
 #: Field step per RK4 substep (fraction of the field's range) below which the error is
 #: far below `ACCURACY` for any material (measured: ~1e-5 at 1 % for a sharp ferrite
 #: loop, ~1e-6 for the Table 1 material): no estimate is run there.
@@ -54,6 +59,24 @@ def richardson_error(coarse, fine, size: float | None = None) -> float:
     if not size > 0:
         return 0.0
     return 16.0 / 15.0 * float(np.max(np.abs(coarse - fine))) / size
+
+
+def step_error(coarse, fine, size: float | None = None) -> float:
+    """(4/3)·max|coarse − fine| relative to ``size`` (default max|fine|): the error of a
+    second-order scheme at a sample step from the same at half the step."""
+    return richardson_error(coarse, fine, size) * (4.0 / 3.0) * (15.0 / 16.0)
+
+
+def refined(drive):
+    """``drive`` (a `jaxhyst.Drive` or `jaxhyst.FluxDrive`) with a sample inserted in the
+    middle of each interval (the same piecewise-linear drive at half the step): its
+    samples are every other one of the result's, which observes twice as many."""
+    t, x = np.asarray(drive.t), np.asarray(getattr(drive, "H", getattr(drive, "B", None)))
+    t2 = np.empty(2 * t.shape[0] - 1)
+    x2 = np.empty_like(t2)
+    t2[::2], x2[::2] = t, x
+    t2[1::2], x2[1::2] = 0.5 * (t[1:] + t[:-1]), 0.5 * (x[1:] + x[:-1])
+    return t2, x2, 2 * drive.run_in
 
 
 def substeps_for(error: float, substeps: int) -> int:

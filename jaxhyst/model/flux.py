@@ -24,6 +24,8 @@ slope dH_hyst/dB = 1/μ0 − dM/dB at both ends: 4th order, like RK4), the loss 
 
 from __future__ import annotations
 
+import warnings
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -32,6 +34,15 @@ from .._typing import Array, Float, Signal
 from ..drive import UNIFORM_TOLERANCE, Drive
 from ..names import DEFAULT_SUBSTEPS
 from ..params import MU0, Parameters, check_parameters, is_concrete, physically_valid
+from .accuracy import (
+    FLUX_ACCURACY,
+    SamplingWarning,
+    may_be_coarse,
+    refined,
+    richardson_error,
+    step_error,
+    substeps_for,
+)
 from .drivers import FluxDriven
 from .jiles_atherton import PAPER_VARIANT, AbstractJAVariant, anhysteretic
 from .losses import Losses, dynamic_energy, dynamic_field
@@ -127,11 +138,28 @@ def _hermite_energy(B_points, H_points, dH_points):
     return jnp.sum(piece, axis=-1)
 
 
+def _arguments(substeps, losses, what: str):
+    """(substeps, losses) of a call in the order of `simulate_unchecked` (…, variant,
+    substeps, losses); the earlier order (…, variant, losses, substeps) is accepted for one
+    release with a ``DeprecationWarning``."""
+    old = isinstance(substeps, Losses) or (
+        isinstance(losses, (int, np.integer)) and not isinstance(losses, bool))
+    if not old:
+        return (DEFAULT_SUBSTEPS if substeps is None else substeps), losses
+    warnings.warn(f"{what}(params, drive, variant, losses, substeps) is the earlier order of "
+                  f"the arguments; it is now (params, drive, variant, substeps, losses), as "
+                  "simulate's — pass them by keyword to be safe.", DeprecationWarning,
+                  stacklevel=3)
+    return (DEFAULT_SUBSTEPS if losses is None else losses), substeps
+
+
 def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
                             variant: AbstractJAVariant = PAPER_VARIANT,
-                            losses: Losses | None = None, substeps: int = DEFAULT_SUBSTEPS
+                            substeps: int = DEFAULT_SUBSTEPS, losses: Losses | None = None
                             ) -> FluxSimulation:
-    """`simulate_flux` without input checks: the pure function for jit/vmap/grad."""
+    """`simulate_flux` without input checks: the pure function for jit/vmap/grad (the
+    arguments in the order of `jaxhyst.simulate_unchecked`)."""
+    substeps, losses = _arguments(substeps, losses, "simulate_flux_unchecked")
     S = int(substeps)
     losses = Losses() if losses is None else losses
     B, t = drive.B, drive.t
@@ -160,13 +188,16 @@ _simulate_flux_jit = eqx.filter_jit(simulate_flux_unchecked)
 
 
 def simulate_flux(params: Parameters, drive: FluxDrive,
-                  variant: AbstractJAVariant = PAPER_VARIANT, losses: Losses | None = None,
-                  substeps: int = DEFAULT_SUBSTEPS) -> FluxSimulation:
+                  variant: AbstractJAVariant = PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
+                  losses: Losses | None = None) -> FluxSimulation:
     """The B-driven model (module docstring): H(t) and ∮ H dB for the flux density of
-    ``drive`` (a `FluxDrive`), any Jiles–Atherton form, loss coefficients ``losses``
-    (`jaxhyst.Losses`; none by default: the static inverse model). Only the magnetic
-    parameters (Ms, a, k, α̃, c) enter. Raises ``FloatingPointError`` naming the first
-    bad sample if the result is not finite."""
+    ``drive`` (a `FluxDrive`), any model form, RK4 ``substeps``, loss coefficients
+    ``losses`` (`jaxhyst.Losses`; none by default: the static inverse model) — the
+    arguments in the order of `jaxhyst.simulate`. Only the magnetic parameters (Ms, a,
+    k, α̃, c and a form's own) enter. Raises ``FloatingPointError`` naming the first bad
+    sample if the result is not finite. Traced (under ``jax.jit``, ``eqx.filter_grad`` …)
+    it is `simulate_flux_unchecked`."""
+    substeps, losses = _arguments(substeps, losses, "simulate_flux")
     if not isinstance(drive, FluxDrive):
         raise TypeError(f"drive must be a jaxhyst.FluxDrive (flux_from_record, "
                         f"sinusoidal_flux …); got {type(drive).__name__}.")
@@ -177,9 +208,20 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
         raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess); got {losses!r}.")
     if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
         raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
+    if jnp.ndim(drive.B) != 1:
+        raise ValueError(f"simulate_flux takes one drive, but drive.B has shape "
+                         f"{jnp.shape(drive.B)}; for a batch of drives use jax.vmap("
+                         "simulate_flux_unchecked, in_axes=(None, 0)).")
+    if any(jnp.ndim(getattr(params, n)) != 0 for n in params.names):
+        raise ValueError("simulate_flux takes one parameter set; for a batch use jax.vmap("
+                         "simulate_flux_unchecked).")
     check_parameters(params)
-    sim = _simulate_flux_jit(params, drive, variant, losses, substeps)
+    sim = _simulate_flux_jit(params, drive, variant, substeps, losses)
+    if not is_concrete(sim.H):  # (traced: nothing to read, nothing to check)
+        return sim
     finite = np.isfinite(np.asarray(sim.H))
+    if finite.all():
+        _check_accuracy(params, drive, variant, substeps, losses, sim)
     if not finite.all():
         i = int(np.flatnonzero(~finite)[0])
         raise FloatingPointError(
@@ -187,6 +229,30 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
             f"B = {float(drive.B[i]):g} T) on: the parameters or the flux density lie "
             "outside the model's range (a B above μ0·(H + Ms) cannot be reached).")
     return sim
+
+
+def _check_accuracy(params, drive, variant, substeps, losses, sim) -> None:
+    """A `SamplingWarning` where the error of H at this sampling — estimated from the same
+    drive at twice the substeps (RK4 in B) and, with losses, at half the sample step —
+    exceeds `FLUX_ACCURACY` of H's range (only for drives whose B moves more than 1 % of
+    its range per substep, or with losses)."""
+    H = np.asarray(sim.observed("H"))
+    size = float(np.ptp(H)) or 1.0
+    errors = []
+    if may_be_coarse(np.asarray(drive.observed(drive.B)), substeps):
+        fine = _simulate_flux_jit(params, drive, variant, 2 * substeps, losses)
+        errors.append(richardson_error(H, fine.observed("H"), size))
+    if losses is not None:
+        t2, B2, run_in2 = refined(drive)
+        fine = _simulate_flux_jit(params, FluxDrive(t2, B2, run_in2, drive.uniform), variant,
+                                  substeps, losses)
+        errors.append(step_error(H, np.asarray(fine.observed("H"))[::2], size))
+    error = max(errors, default=0.0)
+    if error > FLUX_ACCURACY:
+        warnings.warn(f"the sampling is too coarse for the B-driven model: the error of H is "
+                      f"estimated at {error:.2g} of its range (documented: <= "
+                      f"{FLUX_ACCURACY:g}); use {substeps_for(error * 0.1, substeps)} substeps "
+                      "or more, or sample B more finely.", SamplingWarning, stacklevel=3)
 
 
 def sinusoidal_flux(frequency, amplitude, offset=0.0, **kwargs) -> FluxDrive:

@@ -34,7 +34,15 @@ from ..names import DEFAULT_SUBSTEPS
 from ..params import Parameters, check_parameters, is_concrete, physically_valid
 from ..sharding import vmap_blocked
 from ._batching import blocked_under_vmap
-from .accuracy import SamplingWarning, may_be_coarse, richardson_error, sampling_message
+from .accuracy import (
+    RATE_ACCURACY,
+    SamplingWarning,
+    may_be_coarse,
+    refined,
+    richardson_error,
+    sampling_message,
+    step_error,
+)
 from .jiles_atherton import PAPER_VARIANT, AbstractJAVariant, anhysteretic
 from .losses import Losses
 from .magnetostriction import magnetostriction
@@ -290,6 +298,18 @@ def simulate(
         message = sampling_message(error, substeps, "the simulation (M, y)")
         if message is not None:
             warnings.warn(message, SamplingWarning, stacklevel=2)
+    if losses is not None:  # the field balance: second order in the sample step
+        t2, H2, run_in2 = refined(drive)
+        finer = Drive(t2, H2, run_in2, drive.uniform, drive.periodic)
+        fine = _simulate_jit(params, actuator, finer, variant, substeps, losses)
+        error = max(step_error(sim.observed(name), fine.observed(name)[..., ::2])
+                    for name in ("M", "y"))
+        if error > RATE_ACCURACY:
+            warnings.warn(f"the sampling is too coarse for the rate-dependent model: the "
+                          f"error of the simulation (M, y) is estimated at {error:.2g} of "
+                          f"its size (documented: <= {RATE_ACCURACY:g}); sample the drive "
+                          f"at least {int(np.ceil(np.sqrt(error / RATE_ACCURACY) * 1.05))}"
+                          "× more finely.", SamplingWarning, stacklevel=2)
     return sim
 
 
