@@ -11,6 +11,7 @@ import pytest  # noqa: E402
 
 import jaxhyst  # noqa: E402  (float64 on import)
 from jaxhyst._interrupt import clear_stop  # noqa: E402
+from jaxhyst._mappings import release_if_crowded  # noqa: E402
 
 # as the command line does: the CLI chains (subprocesses) and the in-process tests share
 # compiled programs, and a second run of the suite loads them from disk
@@ -69,6 +70,8 @@ def pytest_sessionfinish(session, exitstatus):
 @pytest.fixture(autouse=True)
 def _no_stop_request_left():
     """A test that requests a stop (as the command line's Ctrl-C does) leaves none for
-    the next."""
+    the next; and the compiled programs are dropped before the session's memory mappings
+    near the kernel's limit (XLA aborts the process there: see jaxhyst._mappings)."""
     yield
     clear_stop()
+    release_if_crowded()
