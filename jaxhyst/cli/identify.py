@@ -9,9 +9,15 @@ from jaxhyst._files import writes_in_place
 from jaxhyst.names import DEFAULT_SUBSTEPS, MAGNETIC_OUTPUT_NAMES
 
 from .fitting import decimated_first, fit_by_options, widen_derived_box
-from .heldout import CANDIDATES, check_comparison, held_out_text, leave_one_out
+from .heldout import (
+    CANDIDATES,
+    check_comparison,
+    held_out_figure,
+    held_out_text,
+    leave_one_out,
+)
 from .options import COUNT, EXIT_HELP, HYBRID, LOCAL, POSITIVE_INT, UNITS_HELP, VARIANTS
-from .predictions import joint_view
+from .predictions import joint_view, records_of
 from .problems import DEFAULT_CELLS, LOSS_NAMES, build_problem, resolve_bounds
 from .spec import (
     CLIError,
@@ -103,6 +109,11 @@ def add_parser(sub) -> None:
                         help="progress on stderr: a line every N generations of a hybrid, every "
                         "2 s of a local solve (0: quiet)")
     parser.add_argument("--out", help="write the result (JSON, names and units) here")
+    parser.add_argument("--intervals", choices=("profile", "linear"), default="profile",
+                        help="profile (default): each 95 %% interval checked along its "
+                        "profile likelihood and moved where the quadratic approximation "
+                        "fails (about one more fit); linear: the linearised intervals only "
+                        "(faster)")
     parser.add_argument("--save-model", metavar="FILE",
                         help="write the identified model (parameters, form, actuator, "
                         "substeps) here, for jaxhyst.load_model")
@@ -128,17 +139,15 @@ def _read_start(args):
     return parameters_from_json(read_json(args.start), f"parameters in --start {args.start}")
 
 
-def run(args) -> int:
-    import jaxhyst as jh
-    from jaxhyst._interrupt import stop_requested
-    from jaxhyst.io import bounds_to_json, read_loops, write_json
-
+def check_options(args) -> dict:
+    """Every check of the options that needs no data (one line per problem): the spec of
+    the fit without its data's parts. Also what ``identify-many`` runs on each item of
+    a manifest before any work."""
     check_outputs(args)
     if args.joint and args.loop is not None:
         raise CLIError(f"--joint fits every loop of the file together and --loop "
                        f"{args.loop} picks one; give one of them.")
     known = parameters_arg(args.params) if args.params else None
-    given = bounds_arg(args.bounds)
     actuator = actuator_arg(args.actuator)
     spec = {"data": os.path.abspath(args.data), "columns": args.columns, "loop": args.loop,
             "output": args.output, "actuator": actuator.to_dict(),
@@ -161,6 +170,17 @@ def run(args) -> int:
     if args.method in HYBRID and args.start:
         raise CLIError("--start applies to the local solvers (e.g. --method lm); a hybrid GA "
                        "searches the whole box.")
+    _forms(args)
+    return spec
+
+
+def run(args) -> int:
+    import jaxhyst as jh
+    from jaxhyst._interrupt import stop_requested
+    from jaxhyst.io import bounds_to_json, read_loops, write_json
+
+    spec = check_options(args)
+    given = bounds_arg(args.bounds)
     start = _read_start(args)
     size = os.path.getsize(spec["data"]) if os.path.isfile(spec["data"]) else 0
     if size > 5e6 and args.progress:  # (a few seconds: say so before)
@@ -183,9 +203,10 @@ def run(args) -> int:
     if method not in HYBRID and (args.checkpoint or args.resume):
         raise CLIError(f"--checkpoint/--resume apply to the hybrid GAs; --method {method} is a "
                        "local solve (not checkpointed: rerun it).")
-    held = None
+    held = curves = None
     if args.leave_one_out:  # (first: with several forms, it chooses the one to fit)
         held = leave_one_out(args, spec, given, loops, method, forms)
+        curves = held.pop("_curves")
         if held["partial"]:
             return _interrupted(args, spec, held)
         if held["kept"] != spec["variant"]:
@@ -212,6 +233,14 @@ def run(args) -> int:
         d["leave_one_out"] = held
     figures = _identify_figure(args, problem, result, has_t=loops[0].t is not None) \
         if args.png else []
+    if args.png and curves and not writes_in_place(args.png):
+        held_png = str(Path(args.png).with_name(Path(args.png).stem + "_heldout"
+                                                + Path(args.png).suffix))
+        records = records_of(problem)
+        held_out_figure(curves, held["kept"], spec, records.actuator,
+                        records.output if records.output != "mixed" else records.outputs[0],
+                        held_png)
+        figures.append(held_png)
     if args.out:
         write_json(args.out, d)
     if args.save_model:

@@ -5,10 +5,20 @@ from __future__ import annotations
 
 import argparse
 
-from . import compensate, frequency_response, identify, predict, report, reproduce, simulate
+from . import (
+    compensate,
+    frequency_response,
+    identify,
+    identify_many,
+    predict,
+    report,
+    reproduce,
+    simulate,
+)
 from .options import EXIT_HELP, UNITS_HELP, Parser
 
-COMMANDS = (simulate, identify, predict, report, reproduce, frequency_response, compensate)
+COMMANDS = (simulate, identify, identify_many, predict, report, reproduce, frequency_response,
+            compensate)
 
 
 def build_parser() -> argparse.ArgumentParser:
