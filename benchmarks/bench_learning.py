@@ -41,7 +41,7 @@ def plants(jh, n, seed=0):
 
 def plain_gain(learner, plant, iterations, gamma=0.5):
     """u += γ·Q·e/g, g the model's static gain dy/du (least squares through the model)."""
-    from jaxhyst.control.learning import low_pass
+    from jaxhyst.control.signals import low_pass
 
     ref = learner.reference
     u = learner.init().input

@@ -3,8 +3,9 @@ choose, within a current limit — then, on an actuator that differs from the mo
 correction learned from what it did (iterative learning).
 
 The model is the paper's Table 1 actuator; the "real" actuator stands in for the
-hardware: every parameter 10 % off the model's, with random signs, and its response is
-what the loop below "measures".
+hardware: every parameter 10 % off the model's, with random signs, measured by a sensor
+with noise of 0.01 % of the stroke (`jaxhyst.control.SimulatedPlant`). Learning says
+what each step did, and stops where further steps would only learn the noise.
 
 Run: ``python examples/compensation.py [OUTDIR]`` (the figures go to OUTDIR, default .).
 """
@@ -15,9 +16,8 @@ from pathlib import Path
 import numpy as np
 
 import jaxhyst as jh
-from jaxhyst.control import IterativeLearning
+from jaxhyst.control import IterativeLearning, SimulatedPlant
 from jaxhyst.control.compensate import rms_error
-from jaxhyst.control.tracking import Tracking, evaluate, settling_periods
 from jaxhyst.plots import plot_compensation
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else ".")
@@ -32,19 +32,20 @@ plot_compensation(comp, out / "compensation.png")
 signs = np.random.default_rng(0).choice([-1.0, 1.0], size=10)
 real = jh.Model(jh.Parameters.from_array(np.asarray(jh.TABLE1_TRUE.to_array())
                                          * (1.0 + 0.1 * signs)), jh.ACTUATOR1)
-measure = Tracking.of(real, reference)  # stands in for running the hardware
+plant = SimulatedPlant(real, reference, noise=1e-4)  # stands in for the hardware
 learner = IterativeLearning.of(model, reference, current_limit=2.5)
 state = learner.init()  # the model's compensating current
-measure = measure.with_run_in(settling_periods(measure, state.input)[0])
 
-
-errors = []
+errors = []  # the true tracking error of each current applied (the plant without noise)
 for _ in range(8):
-    y = np.asarray(evaluate(measure, state.input))  # apply the current, measure y
-    errors.append(100 * rms_error(y, reference.displacement, reference.scale))  # %
+    true = rms_error(plant.response(state.input), reference.displacement, reference.scale)
+    errors.append(100 * true)  # %
     print(f"iteration {state.iteration}: rms tracking error {errors[-1]:.3g} % of the "
           f"peak-to-peak; current in [{state.input.min():.3f}, {state.input.max():.3f}] A")
-    state = learner.step(state, y)
+    state = learner.step(state, plant.measure(state.input))  # apply, measure, learn
+    print(f"  {state.reports[-1]}")
+    if state.stopped:
+        break
 
 import matplotlib  # noqa: E402
 

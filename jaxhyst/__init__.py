@@ -43,13 +43,15 @@ _EXPORTS = {
     **dict.fromkeys(("AbstractProgressMeter", "NoProgressMeter", "TextProgressMeter",
                      "TqdmProgressMeter"), ".progress"),
     "Interrupted": "._interrupt",
+    "fit_many": ".batch",
     **dict.fromkeys(("Model", "load_model", "save_model"), ".saved"),
-    **dict.fromkeys(("Compensation", "IterativeLearning", "Reference", "compensate",
-                     "multitone_reference", "reference_from_record", "sinusoidal_reference"),
+    **dict.fromkeys(("Compensation", "DelayError", "IterativeLearning", "Reference",
+                     "SimulatedPlant", "compensate", "multitone_reference",
+                     "reference_from_record", "sinusoidal_reference"),
                     ".control"),
 }
-_SUBMODULES = ("actuator", "analysis", "control", "drive", "fit", "identify", "io", "model",
-               "names", "params", "plots", "progress", "saved", "sharding")
+_SUBMODULES = ("actuator", "analysis", "batch", "control", "drive", "fit", "identify", "io",
+               "model", "names", "params", "plots", "progress", "saved", "sharding")
 
 __all__ = ["cpu_loop_kernels", "enable_compilation_cache", *_EXPORTS]
 

@@ -303,16 +303,17 @@ def write_simulation_csv(path, sim: Simulation, observed_only: bool = True, curr
 
 def write_json(path, obj) -> None:
     """Write ``obj`` as indented JSON, atomically (NaN/inf are written as null)."""
-    atomic_write_text(path, json.dumps(_json_safe(obj), indent=2) + "\n")
+    atomic_write_text(path, json.dumps(json_safe(obj), indent=2) + "\n")
 
 
-def _json_safe(obj):
+def json_safe(obj):
+    """``obj`` with NumPy arrays and scalars, tuples and non-string keys made JSON-able."""
     if isinstance(obj, dict):
-        return {str(k): _json_safe(v) for k, v in obj.items()}
+        return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
+        return [json_safe(v) for v in obj]
     if isinstance(obj, (np.ndarray,)):
-        return _json_safe(obj.tolist())
+        return json_safe(obj.tolist())
     if isinstance(obj, (np.floating, float)):
         return float(obj) if np.isfinite(obj) else None
     if isinstance(obj, np.integer):

@@ -7,6 +7,7 @@ in engineering units (kA/m, μm, ppm) chosen per quantity.
 from __future__ import annotations
 
 import io
+import os
 
 import numpy as np
 
@@ -36,12 +37,26 @@ def _pyplot():
     return plt
 
 
+#: Figure formats by file extension (anything else — a device, a FIFO — gets PNG).
+FIGURE_FORMATS = ("png", "pdf", "svg")
+
+
+def figure_format(path) -> str | None:
+    """The format a figure at ``path`` is written in: its extension's where it is one of
+    `FIGURE_FORMATS`, PNG without an extension; None for another extension."""
+    suffix = os.path.splitext(str(path))[1].lower().lstrip(".")
+    if not suffix:
+        return "png"
+    return suffix if suffix in FIGURE_FORMATS else None
+
+
 def _save(fig, path) -> None:
-    """Write ``fig`` as PNG through the package's file writer (atomic for a regular file,
-    in place for a device or FIFO) and close it."""
+    """Write ``fig`` in the format of its extension (`figure_format`; PNG for a path
+    without one) through the package's file writer (atomic for a regular file, in place
+    for a device or FIFO) and close it."""
     buf = io.BytesIO()
     try:
-        fig.savefig(buf, format="png", dpi=120)
+        fig.savefig(buf, format=figure_format(path) or "png", dpi=120)
     finally:
         _pyplot().close(fig)
     write_bytes(path, buf.getvalue())
@@ -104,6 +119,27 @@ def plot_fit(H, data, model, output: str, path, t=None, title: str = "") -> None
            title=f"error: rms {rms:.3g} {unit}, max {np.nanmax(np.abs(err)):.3g} {unit}")
     for ax in (a1, a2):
         ax.grid(alpha=0.3)
+    _save(fig, path)
+
+
+def plot_predictions(loops, output: str, path, title: str = "") -> None:
+    """Predicted loops against their data: ``loops`` is a list of (label, H (A/m),
+    predicted, data or None) in the output's SI unit; one colour per loop, the data as
+    dots, the prediction as a line."""
+    plt = _pyplot()
+    label, f, unit = DISPLAY[output]
+    scale = 1e-3 if max(float(np.max(np.abs(H))) for _, H, _, _ in loops) >= 1e3 else 1.0
+    hlabel = "H (kA/m)" if scale != 1.0 else "H (A/m)"
+    fig, ax = plt.subplots(figsize=(7, 5.5), constrained_layout=True)
+    for i, (name, H, predicted, data) in enumerate(loops):
+        H = np.asarray(H) * scale
+        if data is not None:
+            ax.plot(H, np.asarray(data) * f, ".", ms=3, color=f"C{i % 10}", alpha=0.6)
+        ax.plot(H, np.asarray(predicted) * f, "-", lw=1.3, color=f"C{i % 10}", label=name)
+    ax.set(xlabel=hlabel, ylabel=f"{label} ({unit})",
+           title=title or "predicted (lines) and measured (dots)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
     _save(fig, path)
 
 

@@ -87,6 +87,7 @@ def test_condition_model_evaluates_power_laws_and_rejects_bad_input():
         fm.warn_outside(cond)  # inside: silent
 
 
+@pytest.mark.slow  # a study (~4 min cold); benchmarks/bench_heldout_frequency.py reports it
 def test_smooth_in_frequency_recovers_its_generating_functions_and_predicts_a_held_out_frequency():
     """Loops at four frequencies made with k ∝ f^0.3 and c linear in ln f (small noise):
     the condition problem recovers both slopes within their intervals, and predicts the
@@ -195,10 +196,19 @@ def test_predict_reproduces_the_fit_and_leave_one_out_reports_each_loop(tmp_path
         B = got["data"][got["loop"] == i]
         assert rows[i]["rms"] == pytest.approx(np.sqrt(np.mean((mine - B) ** 2)), rel=1e-12)
 
+    # at another amplitude: the loops' fields scaled, the data not compared, a figure
+    fig = tmp_path / "pred.svg"
+    assert main(["predict", str(out), "--amplitude", "1234", "--png", str(fig),
+                 "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["loops"]
+    assert all("rms" not in r and "1234" in r["not_compared"] for r in rows)
+    assert fig.read_text().lstrip().startswith("<?xml")
+
     capsys.readouterr()
     # bad input: one line each
     for argv, msg in (
         (["predict", str(out), "--loop", "7"], "holds loops [0, 1, 2]"),
+        (["predict", str(out), "--png", str(tmp_path / "p.xyz")], "figures are written as"),
         (["identify", str(data), "--vary", "k:log_f"], "--vary needs --joint"),
         (["identify", str(data), "--joint", "--vary", "k:pressure"], "give the features"),
         (["identify", str(data), "--joint", "--vary", "k:T"], "has no temperature column"),

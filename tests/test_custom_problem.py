@@ -77,6 +77,7 @@ def test_the_problem_reports_its_groups_and_its_own_cost(problem, lm_fit):
     assert lm_fit.rms_error is None  # groups in different units: no pooled rms
 
 
+@pytest.mark.slow  # three full fits; LM and a solver object are checked by the fast tests
 def test_bfgs_object_lm_and_gatr1_reach_the_same_optimum(problem, lm_fit):
     bfgs = jh.solve(problem, np.full(3, 0.5), solver=optx.BFGS(rtol=1e-12, atol=1e-12),
                     max_steps=400, report=False)
@@ -88,6 +89,7 @@ def test_bfgs_object_lm_and_gatr1_reach_the_same_optimum(problem, lm_fit):
         np.testing.assert_allclose(other.values, lm_fit.values, rtol=1e-5)
 
 
+@pytest.mark.slow  # replicate fits; coverage is the default run's test_identifiability
 def test_report_standard_errors_match_replicate_fits(problem, lm_fit):
     report = lm_fit.report
     assert report is not None and report.rank == 3

@@ -87,7 +87,8 @@ def test_example_compensation():
     d, text = _example("compensation")
     assert _number(r"\(([\d.e+]+)x better than uncompensated\)", text) >= 20
     errors = [float(x) for x in re.findall(r"rms tracking error ([\d.e+-]+) %", text)]
-    assert len(errors) == 8 and errors[-1] < 0.01 * errors[0], errors
+    assert 3 <= len(errors) <= 8 and errors[-1] < 0.01 * errors[0], errors
+    assert all(b < a for a, b in zip(errors, errors[1:], strict=False)), errors
     for fig in ("compensation.png", "compensation_learning.png"):
         assert os.path.getsize(os.path.join(d, fig)) > 10_000
 

@@ -111,3 +111,16 @@ def test_one_loop_cannot_be_left_out(tmp_path, capsys):
     assert main(["identify", str(data), *COMMON, "--variant", "play"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "holds 1 loop" in err, err
+
+
+def test_the_summary_says_when_the_nearest_loops_fit_predicts_better():
+    from jaxhyst.cli.heldout import held_out_text
+
+    row = {"loop": 0, "rms": 0.02, "data_scale": 1.0, "outcome": "successful",
+           "own_rms": 0.01, "ratio": 2.0, "nearest_loop": 1, "nearest_rms": 0.005}
+    held = {"forms": {"classic": {"rows": [row], "score": 0.02, "complete": True,
+                                  "nearest_score": 0.005}},
+            "kept": "classic", "partial": False, "stopped_short": []}
+    assert "BASELINE BETTER" in held_out_text(held)
+    held["forms"]["classic"]["nearest_score"] = 0.05
+    assert "BASELINE BETTER" not in held_out_text(held)

@@ -289,7 +289,7 @@ def _optimistix_solve(problem, solver, z0, max_steps):
 
 
 @pytest.mark.compat
-@pytest.mark.parametrize("solver", ["lm", "bfgs"])
+@pytest.mark.parametrize("solver", ["lm", pytest.param("bfgs", marks=pytest.mark.slow)])
 def test_stepped_local_solve_iterates_like_optimistix_and_stops_when_interrupted(problem,
                                                                                  solver):
     """`solve`/`multistart` step the solver from the host (progress, interruption, cached
@@ -298,7 +298,7 @@ def test_stepped_local_solve_iterates_like_optimistix_and_stops_when_interrupted
     returns the point reached, never lost."""
     from jaxhyst._interrupt import clear_stop, request_stop
     from jaxhyst.identify import outcome_name, solve_traced, start_z
-    from jaxhyst.identify._stepped import _evaluate_at
+    from jaxhyst.identify._stepped import evaluate_at
     from jaxhyst.identify.local import stepped_solve
     from jaxhyst.progress import NoProgressMeter
 
@@ -315,7 +315,7 @@ def test_stepped_local_solve_iterates_like_optimistix_and_stops_when_interrupted
     np.testing.assert_allclose(np.asarray(cost), np.asarray(traced[3]), rtol=1e-9)
     # the residuals returned with the end point are those of the end point
     for i in range(2):
-        _, at_end = _evaluate_at(problem, z[i])
+        _, at_end = evaluate_at(problem, z[i])
         for r, e in zip(residuals, at_end, strict=True):
             e = np.asarray(e)
             np.testing.assert_allclose(np.asarray(r[i]), e, rtol=0,
@@ -339,13 +339,13 @@ def test_the_cost_at_the_end_is_that_of_the_end_point_also_before_any_accepted_s
     (no evaluation compiled at the end); with no accepted step (step limit 0) there are
     none in the state, and the end point is evaluated instead."""
     from jaxhyst.identify import start_z
-    from jaxhyst.identify._stepped import _evaluate_at
+    from jaxhyst.identify._stepped import evaluate_at
 
     for max_steps in (0, 1, 5):
         res = jh.identify.solve(problem, _start(problem), solver=solver, max_steps=max_steps)
         assert res.steps == max_steps
         z = start_z(problem, np.asarray(problem.space.u_from_params(res.params)))
-        cost, residuals = _evaluate_at(problem, z)
+        cost, residuals = evaluate_at(problem, z)
         assert res.cost == pytest.approx(float(cost), rel=1e-9), max_steps
         e = np.concatenate([np.ravel(r) for r in residuals])
         assert res.rms_error == pytest.approx(float(np.sqrt(np.mean(e**2))), rel=1e-9)

@@ -66,6 +66,10 @@ def _files(d):
 CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     (["identify", "{binary}"], 2, "is not text"),
     # issues 41, 42, 44, 46: the new options, and options that do not apply
+    (["simulate", "--flux-amplitude", "0.3", "--amplitude", "1"], 2,
+     "drives the material by B"),
+    (["simulate", "--eddy", "-1"], 2, "--eddy"),
+    (["simulate", "--png", "x.xyz"], 2, "figures are written as"),
     (["compensate", "--current-limit", "2.5", "--gain", "7"], 2, "applies to learning"),
     (["compensate", "--current-limit", "2.5", "--periods", "0"], 2, "--periods"),
     (["compensate", "--current-limit", "2.5", "--noise", "0.01"], 2,

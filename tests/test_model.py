@@ -284,6 +284,7 @@ def test_nonuniform_time_matches_reference():
     assert _rel_err(y, y_ref) <= 1e-5
 
 
+@pytest.mark.slow  # the accelerator's path, compiled for the CPU (~30 s cold)
 def test_the_branch_free_path_of_an_accelerator_gives_the_same_values():
     """On a GPU the time loop computes both sides of its rare branches and selects
     (interval.on_accelerator); forced on the CPU it gives the same signals and

@@ -30,7 +30,7 @@ def _B(sim):
 def test_the_flux_driven_form_agrees_with_an_independent_solve(variant):
     form = jh.EnergyBasedJA() if variant == "energy" else jh.ClassicJA()
     drive = jh.sinusoidal_flux(300.0, 0.35, 0.05, samples_per_period=200)
-    sim = jh.simulate_flux(SOFT, drive, form, LOSSES)
+    sim = jh.simulate_flux(SOFT, drive, form, losses=LOSSES)
     M, H, energy = reference_flux(SOFT, drive.t, drive.B, variant, 0.05, 0.5, drive.run_in,
                                   rtol=1e-13)
     # the documented accuracy at the default setting (2 substeps, 200 samples per period):
@@ -40,7 +40,7 @@ def test_the_flux_driven_form_agrees_with_an_independent_solve(variant):
     assert np.max(np.abs(np.asarray(sim.H) - H)) <= 1e-4 * np.max(np.abs(H))
     assert abs(float(sim.cycle_energy) / energy - 1) <= 1e-6
     # RK4 in B: four substeps more than tenfold better (the error is the scheme's)
-    finer = jh.simulate_flux(SOFT, drive, form, LOSSES, substeps=8)
+    finer = jh.simulate_flux(SOFT, drive, form, losses=LOSSES, substeps=8)
     assert np.max(np.abs(np.asarray(finer.H) - H)) <= 3e-6 * np.max(np.abs(H))
 
 
@@ -164,6 +164,7 @@ def test_loss_coefficients_are_identified_from_the_energy_per_cycle():
     assert result.free == ("k", "eddy", "excess")
 
 
+@pytest.mark.slow  # a rate-dependent fit; the energy-per-cycle fit stays in the default run
 @pytest.mark.filterwarnings("ignore::jaxhyst.identify.SamplingWarning")
 def test_the_rate_dependent_model_is_identified_from_an_h_driven_loop():
     """B(t) measured under a sinusoidal field at 300 Hz: the H-driven rate-dependent

@@ -384,6 +384,7 @@ def test_a_batch_of_one_runs_the_unbatched_loops_with_the_same_values():
     np.testing.assert_allclose(J1, J, rtol=0, atol=1e-13 * float(jnp.max(jnp.abs(J))))
 
 
+@pytest.mark.slow  # a 4096-population vmap; blocks are checked small in test_model
 def test_a_large_vmap_runs_after_the_loop_in_blocks_with_the_same_values():
     # P = 260 members (≥ 4 blocks of 64): a plain jax.vmap runs the work after the time
     # loop block by block; the values, and derivatives through the vmap, are those of the

@@ -116,6 +116,7 @@ def test_the_exit_status_tells_a_physical_limit_from_a_box():
     assert _exit_status(_result({})) == 0
 
 
+@pytest.mark.slow  # two CLI fits (~50 s)
 def test_a_derived_box_that_binds_is_widened_and_the_fit_redone(tmp_path, capsys,
                                                                 monkeypatch):
     """The ferrite-like loop of test_measured, with the box derived from the data made
@@ -164,7 +165,7 @@ def test_the_profile_check_fires_on_a_curved_case_and_not_on_a_straight_one(nois
     straight = identifiability(problem, fit.params)
     assert straight.nonlinear() == () and "NOT LINEAR" not in str(straight)
     assert all(0.8 <= r <= 1.2 for ends in straight.linearity.values() for r in ends)
-    assert set(straight.interval_methods.values()) == {"wald"}
+    assert "profile" not in set(straight.interval_methods.values())  # nothing moved
     drive = jh.sinusoidal_field(2000.0, TABLE3_FIELD_AMPLITUDE, jh.ACTUATOR2.Hb,
                                 samples_per_period=200)
     curved = noisy_strain_problem(jh.TABLE3[2000], jh.ACTUATOR2, drive, 1e-3,
@@ -216,27 +217,32 @@ def test_linearity_is_checked_along_the_constrained_path_at_a_bound(noisy):
     assert set(rep.interval_methods.values()) <= {"one-sided", "bound-aware", "near-bound"}
 
 
-def test_a_model_that_cannot_explain_its_data_is_named_and_its_intervals_widened(noisy):
-    """Data of the classic form fitted with the paper's: the residuals keep the shape
-    the model cannot draw — structured along the loop (σ estimated), or far above the
-    declared noise (σ declared) — and the report says so and widens the intervals. The
-    right form on the same noise: no such line, nothing widened."""
+def test_a_model_that_cannot_explain_its_data_is_named_and_its_intervals_widened():
+    """Data of a form with pinning cells (PlayJA) fitted with the paper's Jiles–Atherton
+    form, 200 samples, 0.1 % noise: the residuals keep the shape the model cannot draw —
+    structured along the loop (σ estimated), or far above the declared noise (σ
+    declared) — and the report says so and widens the intervals. The right form on the
+    same noise: no such line, nothing widened."""
     from jaxhyst.analysis import identifiability
 
-    problem, sd = noisy
-    right = jh.solve(problem, jh.TABLE1_TRUE, report=False)
-    fine = identifiability(problem, right.params, profile=False)
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=200)
+    problem = jh.synthetic_problem(jh.TABLE1_TRUE, drive, jh.ACTUATOR1, jh.TABLE1_BOUNDS,
+                                   fixed=FIXED)
+    y = np.asarray(problem.data)
+    sd = 1e-3 * np.max(np.abs(y))
+    noise = sd * np.random.default_rng(4).standard_normal(y.size)
+    right_problem = eqx.tree_at(lambda q: q.data, problem, jnp.asarray(y + noise))
+    right = jh.solve(right_problem, jh.TABLE1_TRUE, report=False)
+    fine = identifiability(right_problem, right.params, profile=False)
     assert fine.misspecified is None and "MISSPECIFIED" not in str(fine)
-    classic = jh.simulate(jh.TABLE1_TRUE.replace(c=0.3), jh.ACTUATOR1, problem.drive,
-                          jh.ClassicJA())
-    data = np.asarray(problem.drive.observed(classic.y))
-    data = data + sd * np.random.default_rng(4).standard_normal(data.size)
+    play = jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive, jh.PlayJA(1.0))
+    data = np.asarray(drive.observed(play.y)) + noise
     wrong = eqx.tree_at(lambda q: q.data, problem, jnp.asarray(data))
     fit = jh.solve(wrong, jh.TABLE1_TRUE, report=False)
     rep = identifiability(wrong, fit.params, profile=False)
     assert rep.misspecified and rep.misspecified.startswith("structured residuals")
     assert "MISSPECIFIED" in str(rep)
-    declared = jh.Problem(data, problem.drive, jh.ACTUATOR1, problem.space, sigma=sd)
+    declared = jh.Problem(data, drive, jh.ACTUATOR1, problem.space, sigma=sd)
     rep_d = identifiability(declared, fit.params, profile=False)
     assert rep_d.misspecified and rep_d.misspecified.startswith("lack of fit")
     # widened: by the square root of the AR(1) variance inflation of that correlation

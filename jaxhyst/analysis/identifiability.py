@@ -45,7 +45,8 @@ from .intervals import bound_aware_intervals, box_in_x, x_side
 from .misspecification import misspecification
 from .nullspace import MAX_EXPONENT, PREFER_FIX, analyse
 from .profile_intervals import refine_intervals
-from .report import IdentifiabilityReport, _unit
+from .report import IdentifiabilityReport
+from .wording import unit_of
 
 #: float64 resolution: the smallest noise level estimated for a group (relative to its
 #: scale), so that data an exact fit reproduces bit for bit do not give σ = 0.
@@ -154,7 +155,7 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
                    for g, s in zip(problem.groups, sigma, strict=True)}
     group_sigma.update(disagree)
     combos = []
-    units = tuple(_unit(n) for n in names)
+    units = tuple(unit_of(n) for n in names)
     rep = IdentifiabilityReport(
         names=names, values=values, units=units, singular_values=a["singular_values"],
         condition_number=a["condition_number"], null_directions=a["null_directions"],

@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from .report import Z95
+from .wording import Z95
 
 #: How each interval was made.
 METHODS = {

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .report import Z95, _base_name, _clean, _transform_text
+from .wording import Z95, base_name, clean, transform_text
 
 #: Order in which parameters are preferred as the ones to fix (pivots of the null basis):
 #: material constants from datasheets first, then the measurable mass, then the rest.
@@ -19,7 +19,7 @@ MAX_EXPONENT = 10.0
 
 def _preference(names) -> list[int]:
     rank = {n: i for i, n in enumerate(PREFER_FIX)}
-    return sorted(range(len(names)), key=lambda i: (rank.get(_base_name(names[i]), 99), i))
+    return sorted(range(len(names)), key=lambda i: (rank.get(base_name(names[i]), 99), i))
 
 
 def _rref(A, tol=1e-9):
@@ -60,9 +60,9 @@ def analyse(names, values, scale, J, e, null_tol) -> dict:
         pivots = [order[c] for c in piv_p]
         fix = tuple(names[p] for p in pivots)
         for row in basis:
-            row = _clean(row / np.max(np.abs(row)))
+            row = clean(row / np.max(np.abs(row)))
             exps = {names[i]: float(row[i]) for i in np.flatnonzero(row)}
-            null_dirs.append({"exponents": exps, "text": _transform_text(exps)})
+            null_dirs.append({"exponents": exps, "text": transform_text(exps)})
         touched = np.flatnonzero(np.any(np.abs(basis) > 1e-6, axis=0))
         for f in touched:
             if f in pivots:
@@ -71,7 +71,7 @@ def analyse(names, values, scale, J, e, null_tol) -> dict:
             p[f] = 1.0
             for r, piv in enumerate(pivots):
                 p[piv] = -basis[r, f]
-            p = _clean(p)
+            p = clean(p)
             combos.append({names[i]: float(p[i]) for i in np.flatnonzero(p)})
     dof = max(J.shape[0] - rank, 1)
     sigma = float(np.sqrt(np.sum(e**2) / dof))  # ≈ 1 for well-whitened residuals

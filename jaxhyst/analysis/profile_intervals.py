@@ -31,7 +31,7 @@ from ..identify import solve_traced
 from ..identify.solvers import make_solver
 from ..identify.space import z_from_u
 from .intervals import critical_value, held_at_bounds, path_point
-from .report import Z95
+from .wording import Z95
 
 #: A linear end stands where the profile's Δχ² there is within this fraction of c.
 TOLERANCE = 0.2

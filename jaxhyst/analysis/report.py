@@ -4,23 +4,12 @@ intervals, the parameters to fix)."""
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..model.paths import PARAMETER_UNITS
-
-Z95 = 1.959963984540054
-
-
-def _base_name(name: str) -> str:
-    return re.sub(r"\[.*\]$", "", name)
-
-
-def _clean(v, tol=1e-6):
-    v = np.where(np.abs(v) < tol, 0.0, v)
-    return np.round(v, 3) + 0.0
+from .nullspace import analyse
+from .wording import Z95
 
 
 def _power_text(exponents: dict) -> str:
@@ -33,18 +22,6 @@ def _power_text(exponents: dict) -> str:
     if den:
         text += "/" + ("·".join(den) if len(den) == 1 else "(" + "·".join(den) + ")")
     return text
-
-
-def _transform_text(exponents: dict) -> str:
-    def move(n, p):
-        if p == 1:
-            return f"{n} → s·{n}"
-        if p == -1:
-            return f"{n} → {n}/s"
-        return f"{n} → s^{p:g}·{n}"
-
-    return ("the output is unchanged under "
-            + ", ".join(move(n, p) for n, p in exponents.items()) + " for any s > 0")
 
 
 def _signed_power(values, p) -> float:
@@ -175,8 +152,6 @@ class IdentifiabilityReport:
             keep = [i for i, n in enumerate(self.names) if n not in fixed and n not in held]
             if not keep:
                 return tuple(fixed)
-            from .nullspace import analyse  # (it formats with this module's helpers)
-
             sub = analyse([self.names[i] for i in keep], self.values[keep],
                            self.scale[keep], self.jacobian[:, keep], self.residuals, 1e-8)
             if sub["null_directions"]:  # cannot happen after fixing the pivots
@@ -274,10 +249,3 @@ class IdentifiabilityReport:
         if self.misspecified:
             lines.append(f"  MISSPECIFIED: {self.misspecified}")
         return "\n".join(lines)
-
-
-def _unit(name: str) -> str:
-    base = _base_name(name)
-    return PARAMETER_UNITS.get(base, "")
-
-

@@ -34,7 +34,7 @@ from ..progress import progress_meter
 from ..sharding import batch_sharding, place
 from .identifiability import whitened_log_jacobian
 from .intervals import bound_aware_intervals, box_in_x, x_side
-from .report import Z95
+from .wording import Z95
 
 CHI2_95 = 3.841458820694124  # 95 % quantile of χ² with one degree of freedom
 

@@ -9,11 +9,13 @@ import sys
 from jaxhyst._interrupt import stop_requested
 from jaxhyst.names import DEFAULT_SUBSTEPS
 
+from .learning import learn
 from .options import COUNT, FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_INT, UNITS_HELP, VARIANTS
 from .spec import (
     CLIError,
     actuator_arg,
     check_outputs,
+    float_list,
     note,
     parameters_arg,
     print_result,
@@ -103,18 +105,6 @@ def add_parser(sub) -> None:
     parser.set_defaults(func=run)
 
 
-def _floats(text: str, option: str) -> list[float]:
-    import math
-
-    try:
-        values = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise CLIError(f"{option} {text!r}: give comma-separated numbers.") from None
-    if not values or not all(math.isfinite(v) for v in values):
-        raise CLIError(f"{option} {text!r}: give finite comma-separated numbers.")
-    return values
-
-
 def _conflicts(args) -> None:
     """Options that do not go together are refused, not resolved silently."""
     builder = args.reference in ("sine", "tones")
@@ -177,7 +167,7 @@ def _model(args):
 def _limit(args):
     if args.current_limit is None:
         return None
-    values = _floats(args.current_limit, "--current-limit")
+    values = float_list(args.current_limit, "--current-limit")
     if len(values) > 2:
         raise CLIError(f"--current-limit {args.current_limit!r}: give L or LO,HI.")
     return values[0] if len(values) == 1 else tuple(values)
@@ -194,7 +184,7 @@ def _reference(args, model, limit):
     if args.reference in ("sine", "tones"):
         f = args.frequency or 100.0
         amplitudes = ([args.amplitude] if args.reference == "sine" and args.amplitude
-                      else _floats(args.tones, "--tones") if args.tones else None)
+                      else float_list(args.tones, "--tones") if args.tones else None)
         mean = args.mean
         if amplitudes is None or mean is None:
             if limit is None:
@@ -209,7 +199,7 @@ def _reference(args, model, limit):
                                f"{hi * 1e6:.4g} µm that the limit allows: mean "
                                f"{mean * to_m * 1e6:.4g} µm, amplitude "
                                f"{amplitudes[0] * to_m * 1e6:.4g} µm")
-        phases = _floats(args.phases, "--phases") if args.phases else None
+        phases = float_list(args.phases, "--phases") if args.phases else None
         if phases is not None and len(phases) != len(amplitudes):
             raise CLIError(f"--phases: give one per tone ({len(amplitudes)}).")
         ref = multitone_reference(f, [a * to_m for a in amplitudes], mean * to_m,
@@ -240,112 +230,6 @@ def _reference(args, model, limit):
     return ref, f"{args.reference} ({'one period' if ref.periodic else 'a record'})"
 
 
-def _measured(args, model, reference):
-    """(applied input, measured displacement) at the reference's samples, from the run
-    file of --measured (the last whole period of a longer periodic run)."""
-    import numpy as np
-
-    from jaxhyst.io import read_loops
-
-    loops = read_loops(args.measured)
-    if len(loops) != 1:
-        raise CLIError(f"--measured {args.measured}: holds {len(loops)} loops; give one run.")
-    loop = loops[0]
-    if "y" not in loop.signals:
-        raise CLIError(f"--measured {args.measured}: no displacement column y (m).")
-    if model.actuator.n is not None:
-        if loop.I is None:
-            raise CLIError(f"--measured {args.measured}: no current column I (A), the input "
-                           f"of {model.actuator.name}.")
-        u = loop.I
-    else:
-        if loop.H is None:
-            raise CLIError(f"--measured {args.measured}: no field column H (A/m), the input "
-                           f"of {model.actuator.name}.")
-        u = loop.H - float(model.actuator.Hb)
-    y, N = loop.signals["y"], reference.n_samples
-    if reference.periodic and u.shape[0] > N and u.shape[0] % N in (0, 1):
-        R = u.shape[0] // N  # whole periods (a closing sample is dropped): averaged
-        u, y = np.reshape(u[:R * N], (R, N)), np.reshape(y[:R * N], (R, N))
-        if np.max(np.ptp(u, axis=0)) > 1e-6 * max(float(np.ptp(u)), 1e-300):
-            raise CLIError(f"--measured {args.measured}: its {R} periods were driven by "
-                           "different inputs; give the periods of one input.")
-        u, y = u[0], y if R > 1 else y[0]
-    if u.shape[0] != N:
-        raise CLIError(f"--measured {args.measured}: {u.shape[0]} samples, but the reference "
-                       f"has {N}{' per period' if reference.periodic else ''}; measure at its "
-                       "samples.")
-    return np.asarray(u, float), np.asarray(y, float)
-
-
-def _plant(args, reference):
-    """The simulated actuator of --plant."""
-    import jaxhyst as jh
-    from jaxhyst.control import SimulatedPlant
-
-    mode = None
-    if args.mode:
-        values = _floats(args.mode, "--mode")
-        if len(values) != 2:
-            raise CLIError(f"--mode {args.mode!r}: give 'FREQUENCY,DAMPING' (Hz, ratio).")
-        mode = tuple(values)
-    model = _model(args)
-    try:
-        return SimulatedPlant(jh.Model(parameters_arg(args.plant), model.actuator,
-                                       model.variant, model.substeps),
-                              reference, noise=args.noise or 0.0, delay=args.delay or 0,
-                              mode=mode, seed=args.seed)
-    except ValueError as err:
-        raise CLIError(f"--plant: {err}") from None
-
-
-def _learn(args, model, reference, options):
-    """The learning branch: one step from --measured (and --state), or --iterations
-    steps on --plant. Returns (learner, state, measured errors)."""
-    import os
-
-    import numpy as np
-
-    from jaxhyst.control import IterativeLearning
-    from jaxhyst.control.learning import state_from_dict
-    from jaxhyst.io import read_json
-
-    if args.plant:  # (every input checked before the long work)
-        plant = _plant(args, reference)
-        learner = IterativeLearning.of(model, reference, gain=args.gain or 1.0, **options)
-        state = learner.init()
-        for _ in range(args.iterations):
-            if stop_requested():
-                break
-            state = learner.step(state, plant.measure(state.input))
-            note("learning", str(state.reports[-1]))
-            if state.stopped:
-                break
-        return learner, state
-    applied, measured = _measured(args, model, reference)
-    state = None
-    if args.state and os.path.exists(args.state):
-        try:
-            state = state_from_dict(read_json(args.state), reference.n_samples)
-        except ValueError as err:
-            raise CLIError(f"--state {args.state}: {err}") from None
-        if state.stopped:
-            raise CLIError(f"--state {args.state}: learning has stopped ({state.stopped}); "
-                           "remove the file to start again.")
-        if np.max(np.abs(state.input - applied)) > 1e-6 * max(np.ptp(applied), 1e-300):
-            raise CLIError(f"--measured {args.measured}: its input is not the one --state "
-                           f"{args.state} says to apply next; measure that input (or remove "
-                           "the state file to start again from this run).")
-    learner = IterativeLearning.of(model, reference, gain=args.gain or 1.0, **options)
-    if state is None:
-        state = learner.state_for(applied)
-    try:
-        state = learner.step(state, measured)
-    except ValueError as err:
-        raise CLIError(f"--measured {args.measured}: {err}") from None
-    return learner, state
-
-
 def run(args) -> int:
     import warnings
 
@@ -368,7 +252,7 @@ def run(args) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if args.measured or args.plant:
-            learner, state = _learn(args, model, reference, options)
+            learner, state = learn(args, model, reference, options)
             result = learner.compensation
             u = state.input
             y = evaluate(learner.residuals.tracking, u)  # (the model, as it learns)

@@ -78,6 +78,14 @@ def _start_params(args, p, problem):
     return p
 
 
+def _report(args, quiet: bool):
+    """The identifiability report a fit of the command line gets: none for a quiet
+    (leave-one-out) fit, else profile-checked intervals unless ``--intervals linear``."""
+    if quiet:
+        return False
+    return "profile" if getattr(args, "intervals", "profile") == "profile" else True
+
+
 def fit_by_options(args, problem, method, start, quiet: bool = False):
     """The fit the options ask for: a hybrid, one local solve, or a multi-start batch."""
     import numpy as np
@@ -108,7 +116,7 @@ def fit_by_options(args, problem, method, start, quiet: bool = False):
                              progress=meter, checkpoint=None if quiet else args.checkpoint,
                              checkpoint_every=args.checkpoint_every,
                              resume=args.resume and not quiet,
-                             report=False if quiet else "profile")
+                             report=_report(args, quiet))
     meter = TextProgressMeter(every=0, interval=2.0) if progress else False
     if args.start or args.starts <= 1:  # one start: an earlier result, or the box centre
         start = _start_params(args, start, problem) if args.start else np.full(n, 0.5)
@@ -116,12 +124,12 @@ def fit_by_options(args, problem, method, start, quiet: bool = False):
             note(method, "one start " + (f"from {args.start}" if args.start
                                          else "at the centre of the box"))
         return jh.solve(problem, start, solver=method, max_steps=args.max_steps or 200,
-                        progress=meter, report=False if quiet else "profile")
+                        progress=meter, report=_report(args, quiet))
     starts = np.random.default_rng(args.seed).uniform(0.0, 1.0, (args.starts, n))
     if progress:
         note(method, f"{len(starts)} random starts in one vmapped batch")
     return jh.multistart(problem, starts, solver=method, max_steps=args.max_steps or 200,
-                         progress=meter, report=False if quiet else "profile")
+                         progress=meter, report=_report(args, quiet))
 
 
 def refine_from(args, problem, params, what: str = "from the previous fit",
@@ -135,7 +143,7 @@ def refine_from(args, problem, params, what: str = "from the previous fit",
     meter = TextProgressMeter(every=0, interval=2.0) if args.progress and not quiet else \
         False
     return jh.solve(problem, params, solver="lm", max_steps=args.max_steps or 200,
-                    progress=meter, report=False if quiet else "profile")
+                    progress=meter, report=_report(args, quiet))
 
 
 #: Observed samples per loop above which a multi-start local fit first runs on every

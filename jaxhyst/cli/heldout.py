@@ -94,7 +94,8 @@ def _predict(spec, problem, params, loop):
     for w in caught:
         if not issubclass(w.category, ConditionWarning):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    return {**error_summary(predicted, data), "extrapolated": beyond}
+    return {**error_summary(predicted, data), "extrapolated": beyond,
+            "_curve": (predicted, data)}
 
 
 def check_comparison(spec, loops, forms) -> None:
@@ -125,7 +126,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
     from jaxhyst._interrupt import stop_requested
 
     conditions = _conditions(spec, loops)
-    table, partial, short = {}, False, []
+    table, partial, short, curves = {}, False, [], {}
     for form in forms:
         spec_f = {**spec, "variant": form}
         own = []
@@ -151,7 +152,9 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             if result.result == "interrupted":
                 partial = True
                 break
-            row = {"loop": held.index, **_predict(fitted, problem, result.params, held),
+            predicted = _predict(fitted, problem, result.params, held)
+            curves.setdefault(form, []).append((held, *predicted.pop("_curve")))
+            row = {"loop": held.index, **predicted,
                    "rms_fitted": result.rms_error, "outcome": result.result,
                    "outside": _outside(conditions, i), "bounds": fitted["bounds"],
                    "extra_bounds": fitted["extra_bounds"]}
@@ -165,6 +168,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                     j = min(others, key=lambda j: _distance(conditions[i], conditions[j]))
                     result_j, problem_j, spec_j = own[j]
                     near = _predict(spec_j, problem_j, result_j.params, held)
+                    near.pop("_curve")
                     row["nearest_loop"], row["nearest_rms"] = loops[j].index, near["rms"]
             note("leave-one-out", f"{form}: loop {held.index} predicted, rms "
                  f"{row['rms']:.4g} ({row['outcome']})")
@@ -172,12 +176,34 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
         done = len(rows) == len(loops)
         score = math.exp(sum(math.log(r["rms"] / r["data_scale"]) for r in rows) /
                          len(rows)) if done else None
-        table[form] = {"rows": rows, "score": score, "complete": done}
+        near = [r["nearest_rms"] / r["data_scale"] for r in rows if "nearest_rms" in r]
+        near_score = (math.exp(sum(math.log(x) for x in near) / len(near))
+                      if done and len(near) == len(rows) else None)
+        table[form] = {"rows": rows, "score": score, "complete": done,
+                       "nearest_score": near_score}
         if partial:
             break
     scored = {f: t["score"] for f, t in table.items() if t["score"] is not None}
     kept = min(scored, key=scored.get) if scored else None
-    return {"forms": table, "kept": kept, "partial": partial, "stopped_short": short}
+    return {"forms": table, "kept": kept, "partial": partial, "stopped_short": short,
+            "_curves": curves.get(kept, [])}
+
+
+def held_out_figure(curves, kept: str, spec, actuator, output: str, path: str) -> None:
+    """Each held-out loop's prediction by the kept form (``curves``: [(loop, predicted,
+    data)] from its folds) against its data, into ``path``."""
+    import numpy as np
+
+    from jaxhyst.plots import plot_predictions
+
+    from .spec import loop_field
+
+    loops = []
+    for lp, predicted, data in curves:
+        H = np.asarray(loop_field(lp, actuator, spec["data"]))[-predicted.shape[0]:]
+        loops.append((f"loop {lp.index} (held out)", H, predicted, data))
+    plot_predictions(loops, output, path, title=f"leave one loop out: {kept}, each "
+                     "loop predicted from the others")
 
 
 def held_out_text(held: dict) -> str:
@@ -196,9 +222,16 @@ def held_out_text(held: dict) -> str:
         score = (f"score {t['score']:.4g}" if t["score"] is not None else
                  "incomplete")
         lines.append(f"    {form:<10} {score} — " + "; ".join(cells))
-    if held["kept"] and len(held["forms"]) > 1:
-        lines.append(f"    kept: {held['kept']} (the lowest geometric-mean held-out error "
+    kept = held["kept"]
+    if kept and len(held["forms"]) > 1:
+        lines.append(f"    kept: {kept} (the lowest geometric-mean held-out error "
                      "relative to each loop's size)")
+    near = held["forms"].get(kept, {}).get("nearest_score") if kept else None
+    if near is not None and near < held["forms"][kept]["score"]:
+        lines.append(f"    BASELINE BETTER: the nearest measured loop's own fit predicts the "
+                     f"held-out loops better (score {near:.4g} against {kept}'s "
+                     f"{held['forms'][kept]['score']:.4g}): no form here carries across "
+                     "these conditions")
     for s in held["stopped_short"]:
         lines.append(f"    STOPPED SHORT: {s}")
     if held["partial"]:

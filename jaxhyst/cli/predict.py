@@ -28,8 +28,13 @@ def add_parser(sub) -> None:
                         "(replaces the file's frequency column)")
     parser.add_argument("--temperature", type=FINITE, help="the loops' temperature, °C "
                         "(replaces the file's temperature column)")
+    parser.add_argument("--amplitude", type=POSITIVE, help="the loops' peak field, A/m: "
+                        "each loop's field scaled to it (the loop's shape kept); the file's "
+                        "data, measured at its own amplitude, are then not compared")
     parser.add_argument("--out", help="write the prediction here (CSV: loop, H, predicted, "
                         "data, error; SI units)")
+    parser.add_argument("--png", help="draw the predicted loops (with the data they are "
+                        "compared with) here: .png, .pdf or .svg")
     parser.add_argument("--json", action="store_true",
                         help="print the result as one JSON object on stdout")
     parser.set_defaults(func=run)
@@ -58,10 +63,17 @@ def run(args) -> int:
         loops = [lp for lp in loops if lp.index in args.loop]
     overrides = {"frequency": args.frequency, "temperature": args.temperature}
     varies = fitted.form.features if isinstance(fitted, jh.ConditionProblem) else ()
-    for name, feature in (("frequency", "log_f"), ("temperature", "T")):
-        if overrides[name] is not None and feature not in varies:
+    for name, feature in (("frequency", "log_f"), ("temperature", "T"),
+                          ("amplitude", "log_amplitude")):
+        if vars(args)[name] is not None and feature not in varies:
             warn(args, f"--{name}: the fitted model does not vary with the {name} "
+                 "(identify --vary); only the loop's field changes." if name == "amplitude"
+                 else f"--{name}: the fitted model does not vary with the {name} "
                  "(identify --vary); it has no effect on the prediction.")
+    actuator = records_of(fitted).actuator
+    elsewhere = _elsewhere(loops, overrides, args.amplitude)
+    if args.amplitude is not None:
+        loops = [_scaled(lp, args.amplitude, actuator, source) for lp in loops]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConditionWarning)
         predictions = predict_loops(spec, fitted, params, loops, overrides, source)
@@ -70,11 +82,16 @@ def run(args) -> int:
             warn(args, str(w.message))
     rows, columns = [], {"loop": [], "H_A_per_m": [], "predicted": [], "data": [],
                          "error": []}
+    curves = []
     for lp, (pred, data) in zip(loops, predictions, strict=True):
-        H = np.asarray(loop_field(lp, records_of(fitted).actuator, source))
+        H = np.asarray(loop_field(lp, actuator, source))
         row = {"loop": lp.index, "samples": int(pred.shape[0])}
+        if elsewhere.get(lp.index):
+            row["not_compared"] = elsewhere[lp.index]
+            data = None
         if data is not None:
             row.update(error_summary(pred, data))
+        curves.append((f"loop {lp.index}", H[-pred.shape[0]:], pred, data))
         rows.append(row)
         columns["loop"].append(np.full(pred.shape, lp.index, dtype=float))
         columns["H_A_per_m"].append(H[-pred.shape[0]:])
@@ -90,6 +107,13 @@ def run(args) -> int:
         if expected is not None:
             row["expected_relative_error"] = expected["extrapolated" if row["extrapolation"]
                                                       else "interpolated"]
+    if args.png:
+        from jaxhyst.plots import plot_predictions
+
+        records = records_of(fitted)
+        plot_predictions(curves, records.output if records.output != "mixed"
+                         else records.outputs[0], args.png,
+                         title=f"predicted by {os.path.basename(args.result)}")
     if args.out:
         write_columns_csv(args.out, {k: np.concatenate(v) for k, v in columns.items()})
     text = [f"prediction of {len(rows)} loop(s) of {os.path.basename(source)} from "
@@ -97,18 +121,48 @@ def run(args) -> int:
     for r in rows:
         err = (f": rms error {r['rms']:.4g} (max {r['max_abs']:.4g}, "
                f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|)") if "rms" in r else \
-            " (no data to compare)"
+            (f" (not compared with the file's data: {r['not_compared']})"
+             if "not_compared" in r else " (no data to compare)")
         where = ("; an extrapolation beyond the fitted loops' " + r["extrapolation"]
                  if r["extrapolation"] else "; within the fitted loops' conditions")
         exp = r.get("expected_relative_error")
         hint = (f"; expected from the leave-one-out folds: {100 * exp:.2g} % of max|data|"
                 if exp is not None else "")
         text.append(f"  loop {r['loop']}{err}{where}{hint}")
-    if args.out:
-        text.append(f"  wrote {args.out}")
-    print_result(args, {"loops": rows, "out": args.out}, "\n".join(text))
+    text += [f"  wrote {f}" for f in (args.out, args.png) if f]
+    print_result(args, {"loops": rows, "out": args.out, "png": args.png}, "\n".join(text))
     return 0
 
+
+
+def _elsewhere(loops, overrides, amplitude) -> dict:
+    """{loop index: why its data are not those of the prediction} for the loops whose
+    file conditions the options replace with other values."""
+    out = {}
+    units = {"frequency": "Hz", "temperature": "°C"}
+    for lp in loops:
+        why = [f"measured at {name} {lp.conditions[name]:g} {units[name]}, predicted at "
+               f"{value:g} {units[name]}" for name, value in overrides.items()
+               if value is not None and lp.conditions.get(name) is not None
+               and abs(lp.conditions[name] - value) > 1e-9 * max(1.0, abs(value))]
+        if amplitude is not None:
+            why.append(f"its field scaled to the peak {amplitude:g} A/m")
+        if why:
+            out[lp.index] = "; ".join(why)
+    return out
+
+
+def _scaled(lp, amplitude, actuator, source):
+    """The loop ``lp`` with its field scaled to the peak ``amplitude`` (A/m), no data."""
+    import dataclasses
+
+    import numpy as np
+
+    H = np.asarray(loop_field(lp, actuator, source), dtype=np.float64)
+    peak = float(np.max(np.abs(H)))
+    if peak <= 0:
+        raise CLIError(f"--amplitude: loop {lp.index} of {source} has no field to scale.")
+    return dataclasses.replace(lp, H=H * (amplitude / peak), I=None, signals={})
 
 
 def _expected_error(saved) -> dict | None:

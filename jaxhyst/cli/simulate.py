@@ -36,6 +36,13 @@ def add_parser(sub) -> None:
     parser.add_argument("--field-amplitude", type=FINITE, help="field amplitude, A/m (instead "
                         "of a current)")
     parser.add_argument("--field-offset", type=FINITE, help="field offset, A/m (default 0)")
+    parser.add_argument("--flux-amplitude", type=POSITIVE, help="drive the material by its "
+                        "flux density B = amplitude·sin(2πft), T (the B-driven model: H(t) "
+                        "and the loss per volume; no actuator)")
+    parser.add_argument("--eddy", type=NON_NEGATIVE, help="eddy-current loss coefficient, "
+                        "A/m per T/s (the rate-dependent model; default 0)")
+    parser.add_argument("--excess", type=NON_NEGATIVE, help="excess loss coefficient, A/m "
+                        "per √(T/s) (the rate-dependent model; default 0)")
     parser.add_argument("--drive", help="CSV/TSV with t and H (or I) columns")
     parser.add_argument("--columns", help="column names for a file without a header")
     parser.add_argument("--run-in-periods", type=COUNT, help="with --drive: copies of the "
@@ -82,6 +89,13 @@ def _check_drive_options(args) -> None:
                        "one period).")
     if args.seed is not None and args.noise is None:
         raise CLIError("--seed goes with --noise.")
+    if args.flux_amplitude is not None:
+        other = [o for o in ("amplitude", "offset", "field_amplitude", "field_offset",
+                             "noise", "delay") if getattr(args, o) is not None] + \
+            (["drive"] if args.drive else [])
+        if other:
+            raise CLIError(f"--flux-amplitude drives the material by B; {flag(other[0])} "
+                           "belongs to a current or field drive of the actuator: give one.")
     if args.field_amplitude is not None:
         current = [o for o in ("amplitude", "offset") if getattr(args, o) is not None]
         if current:
@@ -145,6 +159,49 @@ def _sensed(args, y):
     return y
 
 
+def _losses(args):
+    """The loss coefficients given (`jaxhyst.Losses`), or None for the static model."""
+    import jaxhyst as jh
+
+    if args.eddy is None and args.excess is None:
+        return None
+    return jh.Losses(eddy=args.eddy or 0.0, excess=args.excess or 0.0)
+
+
+def _run_flux(args, params) -> int:
+    """The B-driven model: H(t) for B(t) = amplitude·sin(2πft), and the loss per volume."""
+    import numpy as np
+
+    import jaxhyst as jh
+    from jaxhyst.io import write_columns_csv
+
+    drive = jh.sinusoidal_flux(args.frequency, args.flux_amplitude, periods=args.periods,
+                               samples_per_period=args.samples_per_period)
+    sim = jh.simulate_flux(params, drive, variant_from_name(args.variant),
+                           substeps=args.substeps, losses=_losses(args))
+    H = np.asarray(sim.observed("H"))
+    loss = float(sim.loss_density(args.frequency, max(1, int(round(args.periods)))))
+    what = f"B = {args.flux_amplitude:g} sin(2π·{args.frequency:g} t) T"
+    summary = {"params": args.params or args.preset, "drive": what,
+               "samples_observed": int(H.shape[0]), "H_min_A_per_m": float(H.min()),
+               "H_max_A_per_m": float(H.max()), "loss_W_per_m3": loss}
+    if args.png:
+        from jaxhyst.plots import plot_predictions
+
+        plot_predictions([(what, H, np.asarray(sim.observed("B")), None)], "flux_density",
+                         args.png, title=f"B-driven: {what}")
+        summary["png"] = args.png
+    if args.csv:
+        write_columns_csv(args.csv, {n: np.asarray(sim.observed(q)) for n, q in (
+            ("t_s", "t"), ("B_T", "B"), ("H_A_per_m", "H"), ("M_A_per_m", "M"))})
+        summary["csv"] = args.csv
+    text = [f"simulated {H.shape[0]} observed samples ({what})",
+            f"  H in [{H.min():.4g}, {H.max():.4g}] A/m, loss {loss:.4g} W/m³ (f·∮H dB)"]
+    text += [f"  wrote {summary[k]}" for k in ("csv", "png") if k in summary]
+    print_result(args, summary, "\n".join(text))
+    return 0
+
+
 def run(args) -> int:
     import numpy as np
 
@@ -154,10 +211,12 @@ def run(args) -> int:
     check_outputs(args)
     _check_drive_options(args)
     params = parameters_arg(args.params or args.preset)
+    if args.flux_amplitude is not None:
+        return _run_flux(args, params)
     actuator = actuator_arg(args.actuator)
     drive, what = _drive_from_args(args, actuator)
     sim = jh.simulate(params, actuator, drive, variant=variant_from_name(args.variant),
-                      substeps=args.substeps)
+                      substeps=args.substeps, losses=_losses(args))
     y = sim.observed("y")
     summary = {
         "params": args.params or args.preset, "actuator": actuator.name, "drive": what,

@@ -64,6 +64,14 @@ def check_outputs(args, *, directory: str | None = None) -> None:
     if vars(args).get("png"):
         import importlib.util
 
+        from jaxhyst.plots import FIGURE_FORMATS, figure_format
+
+        if not writes_in_place(Path(args.png).expanduser()) and \
+                figure_format(args.png) is None:
+            raise CLIError(f"--png {args.png}: figures are written as "
+                           f"{', '.join('.' + f for f in FIGURE_FORMATS)}; give a file name "
+                           "with one of those extensions.")
+
         if importlib.util.find_spec("matplotlib") is None:
             raise CLIError(f"--png {args.png}: figures need matplotlib; pip install "
                            "'jaxhyst[plots]' or leave --png out.")
@@ -149,9 +157,9 @@ def fixed_arg(items, params) -> dict:
 
 def print_result(args, summary: dict, text: str) -> None:
     if vars(args).get("json", False):
-        from jaxhyst.io import _json_safe
+        from jaxhyst.io import json_safe
 
-        print(json.dumps(_json_safe(summary)))
+        print(json.dumps(json_safe(summary)))
     else:
         print(text)
 
@@ -207,3 +215,16 @@ def loop_drive(spec, loop, out, actuator, source=None):
     if output_kind(SIGNAL_OUTPUTS[out]).magnetic_only:
         H = monotone_branches(H)  # reversals below 5 % of the range are noise
     return jh.drive_from_record(loop.t, H, run_in_periods=spec.get("run_in_periods", 1))
+
+
+def float_list(text: str, option: str) -> list[float]:
+    """The comma-separated numbers of ``option``'s value ``text`` (one line if not)."""
+    import math
+
+    try:
+        values = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise CLIError(f"{option} {text!r}: give comma-separated numbers.") from None
+    if not values or not all(math.isfinite(v) for v in values):
+        raise CLIError(f"{option} {text!r}: give finite comma-separated numbers.")
+    return values

@@ -9,7 +9,7 @@ from .compensate import (
     UnreachableWarning,
     compensate,
 )
-from .learning import IterativeLearning, LearningReport, LearningState
+from .learning import DelayError, IterativeLearning, LearningReport, LearningState
 from .limits import InputLimits, InputMap
 from .plant import SimulatedPlant
 from .reach import Reach, Unreachable
@@ -23,6 +23,7 @@ from .tracking import Tracking
 
 __all__ = [
     "Compensation",
+    "DelayError",
     "InputLimits",
     "InputMap",
     "IterativeLearning",

@@ -23,14 +23,10 @@ import time
 import warnings
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
-from .._interrupt import stop_requested
 from ..drive import Drive
-from ..identify import TargetTermination, jacobian_linearized
 from ..model.accuracy import richardson_error
 from ..progress import progress_meter
 from ..saved import Model
@@ -38,20 +34,19 @@ from .inverse import inverse_input
 from .limits import InputLimits, InputMap
 from .reach import Reach, Unreachable, reach, unreachable
 from .reference import Reference
+from .refine import (
+    RESIDUAL_UNIT,
+    AffineResiduals,
+    TrackingResiduals,
+    least_squares,
+    refine_input,
+)
 from .tracking import Tracking, evaluate, input_gain, settling_periods
 
 #: Largest estimated model error at the reference's sampling, relative to its stroke.
 COARSE = 1e-3
 #: Most input samples refined at once (the Jacobian is N × N, dense).
 MAX_REFINED = 4096
-#: The refinement's residuals are (y − r) in this fraction of the reference's stroke, so
-#: that Levenberg–Marquardt's first damping (1) is small against JᵀJ: its first steps are
-#: Gauss–Newton steps, which reach a reachable reference in a few.
-RESIDUAL_UNIT = 1e-4
-#: Levenberg–Marquardt's Cauchy tolerances (on z and on Σr²) when the target is not met.
-_RTOL, _ATOL = 1e-8, 1e-12
-
-
 class UnreachableWarning(UserWarning):
     """Part of a reference lies beyond what the actuator can do (`Compensation.unreachable`
     says where and why)."""
@@ -199,83 +194,6 @@ class Compensation:
                                 for u in self.unreachable]}
 
 
-class TrackingResiduals(eqx.Module):
-    """The refinement's residuals: (y(u(z)) − r)/(scale·`RESIDUAL_UNIT`), then the
-    map's own."""
-
-    tracking: Tracking
-    imap: InputMap
-    r: jax.Array
-    scale: jax.Array
-
-    def __call__(self, z, args=None):
-        y = self.tracking.displacement(self.imap.input(z))
-        e = (y - self.r) / (self.scale * RESIDUAL_UNIT)
-        return jnp.concatenate([e, self.imap.extra_residuals(z)])
-
-
-@eqx.filter_jit
-def _least_squares(residuals, z0, max_steps, rtol, atol, target):
-    """Levenberg–Marquardt from z0, stopped also once Σr² ≤ ``target``: (z, whether it
-    converged, steps)."""
-    fn = jacobian_linearized(residuals)
-    solver = TargetTermination(optx.LevenbergMarquardt(rtol=rtol, atol=atol), target)
-    sol = optx.least_squares(fn, solver, z0, max_steps=max_steps, throw=False,
-                             options={"jac": "fwd"})
-    return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
-
-
-class _Affine(eqx.Module):
-    """u = mid + half·(a + b·shape): the uncompensated input's two coordinates."""
-
-    tracking: Tracking
-    shape: jax.Array
-    mid: jax.Array  # (data: another limit compiles nothing)
-    half: jax.Array
-    r: jax.Array
-    scale: jax.Array
-
-    def input(self, z):
-        return self.mid + self.half * (z[0] + z[1] * self.shape)
-
-    def __call__(self, z, args=None):
-        y = self.tracking.displacement(self.input(z))
-        return (y - self.r) / (self.scale * RESIDUAL_UNIT)
-
-
-#: Levenberg–Marquardt steps of the refinement between two looks at its progress, and
-#: the least relative fall of the rms error per look that counts as progress.
-CHUNK, PROGRESS = 10, 0.01
-
-
-def refine_input(residuals: TrackingResiduals, z0, max_steps: int, target: float):
-    """Levenberg–Marquardt on the tracking error from z0, looked at every `CHUNK` steps:
-    it ends when it reaches the ``target`` Σr² or converges (``successful``), when a
-    look finds the rms error fallen by less than `PROGRESS` (``stalled``: the reference
-    is followed as far as the actuator can, the rest is beyond it), after ``max_steps``
-    (``max_steps_reached``) or on Ctrl-C (``interrupted``). Returns (z, steps,
-    outcome)."""
-    z, steps = jnp.asarray(z0), 0
-    cost = float(jnp.sum(residuals(z) ** 2))
-    target = jnp.asarray(target, dtype=jnp.float64)  # (data: a new tolerance compiles nothing)
-    while True:
-        z_new, ok, n = _least_squares(residuals, z, min(CHUNK, max_steps - steps), _RTOL,
-                                      _ATOL, target)
-        steps += int(n)
-        new_cost = float(jnp.sum(residuals(z_new) ** 2))
-        if new_cost <= cost:
-            z = z_new
-        if bool(ok):
-            return np.asarray(z), steps, "successful"
-        if stop_requested():
-            return np.asarray(z), steps, "interrupted"
-        if steps >= max_steps:
-            return np.asarray(z), steps, "max_steps_reached"
-        if not new_cost < (1.0 - PROGRESS) ** 2 * cost:
-            return np.asarray(z), steps, "stalled"
-        cost = new_cost
-
-
 def _uncompensated(tracking: Tracking, reference: Reference, limits: InputLimits,
                    u_start: np.ndarray) -> np.ndarray:
     """The best input that ignores hysteresis: u = a + b·(r − r̄)/(ptp(r)/2), a and b
@@ -284,11 +202,11 @@ def _uncompensated(tracking: Tracking, reference: Reference, limits: InputLimits
     r = np.asarray(reference.displacement)
     span = float(np.ptp(r)) or 1.0
     shape = (r - r.mean()) / (0.5 * span)
-    affine = _Affine(tracking, jnp.asarray(shape), limits.mid, limits.half, jnp.asarray(r),
+    affine = AffineResiduals(tracking, jnp.asarray(shape), limits.mid, limits.half, jnp.asarray(r),
                      jnp.asarray(reference.scale))
     z0 = np.array([(u_start.mean() - float(limits.mid)) / float(limits.half),
                    0.5 * np.ptp(u_start) / float(limits.half)])
-    z, _, _ = _least_squares(affine, jnp.asarray(z0), 40, 1e-6, 1e-9, jnp.zeros(()))
+    z, _, _ = least_squares(affine, jnp.asarray(z0), 40, 1e-6, 1e-9, jnp.zeros(()))
     # within the same limits as the compensated input: the range and the slew rate
     imap = InputMap(limits, reference.n_samples, reference.dt, reference.periodic)
     return np.asarray(imap.input(jnp.asarray(imap.coordinates(

@@ -139,7 +139,7 @@ def _finish_batch(problem, solver, static, carry):
 
 
 @eqx.filter_jit
-def _evaluate_at(problem, z):
+def evaluate_at(problem, z):
     """(cost, group residuals) at the solver coordinate z."""
     return problem.cost(z), problem.group_residuals(problem.space.params_from_z(z))
 
@@ -197,7 +197,7 @@ class SteppedSolve:
         if missing.size:
             out[3], out[5] = np.array(out[3]), [np.array(r) for r in out[5]]  # (writable)
             for k in missing:
-                cost, residuals = _evaluate_at(self.problem, out[0][k])
+                cost, residuals = evaluate_at(self.problem, out[0][k])
                 out[3][k] = float(cost)
                 for r, e in zip(out[5], residuals, strict=True):
                     r[k] = np.ravel(e)

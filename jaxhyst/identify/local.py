@@ -18,7 +18,7 @@ from .problem import AbstractProblem, check_problem
 from .result import RESULTS, IdentificationResult, member, outcome_name
 from .solvers import make_solver, solver_name
 from .space import z_from_u
-from .summary import _point, summarize
+from .summary import point_of, summarize
 
 
 def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int, meter,
@@ -106,7 +106,7 @@ _z_from_u_jit = jax.jit(z_from_u)
 
 
 
-def _finished(result: IdentificationResult, how: str) -> IdentificationResult:
+def finished(result: IdentificationResult, how: str) -> IdentificationResult:
     """The result, or `Interrupted` carrying it after a KeyboardInterrupt."""
     if how == KEYBOARD:
         raise Interrupted(result)
@@ -139,7 +139,7 @@ def solve(problem: AbstractProblem, start, solver="lm", max_steps: int = 200,
     result = summarize(problem, z[0], steps[0], member(results, 0), solver_name(solver),
                        time.perf_counter() - t0,
                        evaluated=(cost[0], [r[0] for r in residuals]))
-    return _finished(result, how)
+    return finished(result, how)
 
 
 def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 200,
@@ -170,7 +170,7 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
     ranked = np.where(np.isfinite(costs), costs, np.inf)
     best = int(np.argmin(ranked))
     space = problem.space
-    values = np.asarray(_point(space, zs)[0])  # (K, n), one compiled call
+    values = np.asarray(point_of(space, zs)[0])  # (K, n), one compiled call
     names = np.atleast_1d(outcome_name(results))
     table = [
         {"cost": float(costs[i]), "result": str(names[i]), "steps": int(steps[i]),
@@ -181,4 +181,4 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
                        f"{solver_name(solver)} x{len(costs)}", time.perf_counter() - t0,
                        extra={"starts": table, "best_index": best},
                        evaluated=(costs[best], [r[best] for r in residuals]))
-    return _finished(result, how)
+    return finished(result, how)

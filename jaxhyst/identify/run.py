@@ -12,7 +12,7 @@ from .._driver import DONE, drive
 from ..progress import progress_meter
 from .checkpoint import CheckpointError, fingerprint, load_checkpoint, save_checkpoint
 from .hybrid import HYBRIDS, GAState, HybridGA, best_z
-from .local import _finished
+from .local import finished
 from .problem import AbstractProblem, check_problem
 from .result import RESULTS, IdentificationResult, outcome_name
 from .summary import summarize
@@ -150,4 +150,4 @@ def run_hybrid(problem: AbstractProblem, method: str | HybridGA = "GATR1", seed:
     saved = f" (checkpoint {checkpoint})" if checkpoint else ""
     meter.close(meter_state, f"done: {result.result}, cost {result.cost:.3e}" if how == DONE
                 else f"interrupted {where}; returning the best so far{saved}")
-    return _finished(result, how)
+    return finished(result, how)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import equinox as eqx
 import numpy as np
 
-from ._stepped import _evaluate_at
+from ._stepped import evaluate_at
 from .problem import AbstractProblem
 from .result import RESULTS, IdentificationResult, as_result, bound_status, outcome_name
 from .space import u_from_z
@@ -29,7 +29,7 @@ def _stats(groups, residuals):
 
 
 @eqx.filter_jit
-def _point(space, z):
+def point_of(space, z):
     """(free values in SI, parameter pytree) at the solver coordinate z."""
     return space.free_from_u(u_from_z(z)), space.params_from_z(z)
 
@@ -38,7 +38,7 @@ def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: fl
               extra: dict | None = None, evaluated=None) -> IdentificationResult:
     """An `IdentificationResult` at the solver coordinate ``z`` (without report).
     ``evaluated``: (cost, group residuals) at ``z`` when the caller has them already."""
-    cost, residuals = evaluated if evaluated is not None else _evaluate_at(
+    cost, residuals = evaluated if evaluated is not None else evaluate_at(
         problem, np.asarray(z))
     cost = float(cost)
     outcome = as_result(outcome)
@@ -46,7 +46,7 @@ def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: fl
         outcome = RESULTS.nonfinite
     groups, rms, max_abs, sse = _stats(problem.groups, residuals)
     space = problem.space
-    values, params = _point(space, np.asarray(z))  # (jnp.asarray would compile a copy)
+    values, params = point_of(space, np.asarray(z))  # (jnp.asarray would compile a copy)
     values = np.asarray(values, dtype=float)
     lower, upper = np.asarray(space.lower), np.asarray(space.upper)
     at_bound = {space.names[i]: (side, float(lower[i] if side == "lower" else upper[i]))

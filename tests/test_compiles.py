@@ -1,0 +1,112 @@
+"""Numbers a user changes between calls are data, not structure (issue 45): after the
+first call, a new current limit, frequency, tolerance or loss value compiles nothing in
+`compensate`, `simulate`, `simulate_flux` and a joint fit. Counted as JAX reports
+compilations (``jax.log_compiles``: one "Compiling …" line per program it lowers and
+compiles, from the persistent cache or not)."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+
+import jax
+import numpy as np
+import pytest
+
+import jaxhyst as jh
+from jaxhyst.control import sinusoidal_reference
+from jaxhyst.params import MU0
+
+
+class _Compiles(logging.Handler):
+    def __init__(self):
+        super().__init__(logging.DEBUG)
+        self.names: list[str] = []
+
+    def emit(self, record):
+        message = record.getMessage()
+        if message.startswith("Compiling"):
+            self.names.append(message[:100])
+
+
+@contextlib.contextmanager
+def counting():
+    """The programs JAX compiles inside the block (their log lines)."""
+    handler = _Compiles()
+    log = logging.getLogger("jax")
+    level = log.level
+    log.addHandler(handler)
+    log.setLevel(logging.DEBUG)
+    try:
+        with jax.log_compiles():
+            yield handler.names
+    finally:
+        log.removeHandler(handler)
+        log.setLevel(level)
+
+
+def test_the_counter_counts():
+    with counting() as names:
+        jax.jit(lambda x: x * 3.0 + 1.0)(np.arange(3.0))
+    assert len(names) == 1
+
+
+MODEL = jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1)
+
+
+def test_compensate_compiles_nothing_for_a_new_limit_frequency_or_tolerance():
+    ref = sinusoidal_reference(100.0, 20e-6, 45e-6, samples_per_period=100)
+    jh.compensate(MODEL, ref, current_limit=2.5, max_steps=3)
+    other = sinusoidal_reference(140.0, 15e-6, 40e-6, samples_per_period=100)
+    with counting() as names:
+        jh.compensate(MODEL, ref, current_limit=2.2, max_steps=3)
+        jh.compensate(MODEL, other, current_limit=(-0.5, 2.6), max_steps=3, tolerance=1e-4)
+    assert names == []
+
+
+def test_simulate_and_simulate_flux_compile_nothing_for_a_new_frequency_or_loss_value():
+    losses = jh.Losses(eddy=0.05, excess=0.5)
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=64)
+    flux = jh.sinusoidal_flux(1000.0, 0.3, samples_per_period=64)
+    jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive, losses=losses)
+    jh.simulate_flux(jh.TABLE1_TRUE, flux, losses=losses)
+    with counting() as names:
+        drive2 = jh.sinusoidal_current(250.0, 0.5, 1.2, jh.ACTUATOR1, samples_per_period=64)
+        jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive2, losses=jh.Losses(0.02, 0.9))
+        flux2 = jh.sinusoidal_flux(400.0, 0.25, samples_per_period=64)
+        jh.simulate_flux(jh.TABLE1_TRUE, flux2, losses=jh.Losses(0.1, 0.2))
+    assert names == []
+
+
+SOFT = jh.Parameters(Ms=3.5e5, lambda_s=0.0, a=30.0, k=20.0, alpha=1e-5, c=0.3, E=1.0,
+                     Kz=1.0, Mz=1.0, Cz=0.0)
+FIXED = {"Ms": 3.5e5, "alpha": 1e-5, "lambda_s": 0.0, "E": 1.0, "Kz": 1.0, "Mz": 1.0,
+         "Cz": 0.0}
+
+
+def _fit(frequency, amplitude, box, loss_box):
+    """A joint fit of three B(H) loops of the rate-dependent classic form at
+    ``frequency`` (Hz) and three amplitudes around ``amplitude`` (A/m)."""
+    from jaxhyst.identify.joint import NO_ACTUATOR
+
+    drives, data = [], []
+    for scale in (0.6, 1.0, 1.6):
+        d = jh.sinusoidal_field(frequency, scale * amplitude, 0.0, samples_per_period=48)
+        sim = jh.simulate(SOFT, NO_ACTUATOR, d, jh.ClassicJA(), losses=jh.Losses(0.05, 0.5))
+        drives.append(d)
+        data.append(np.asarray(d.observed(MU0 * (sim.H + sim.M))))
+    space = jh.ParameterSpace.for_model(box, fixed=FIXED, losses=loss_box, n_loops=3)
+    problem = jh.JointProblem(data, drives, NO_ACTUATOR, space, output="flux_density",
+                              variant=jh.ClassicJA())
+    start = space.u_from_params((SOFT.replace(a=40.0, k=15.0, c=0.4), jh.Losses(0.08, 0.3)))
+    return jh.solve(problem, start, max_steps=4)
+
+
+@pytest.mark.filterwarnings("ignore::jaxhyst.identify.SamplingWarning")
+def test_a_joint_fit_compiles_nothing_for_new_data_a_new_frequency_or_a_new_box():
+    box = jh.Bounds(SOFT.replace(a=10.0, k=5.0, c=0.05), SOFT.replace(a=100.0, k=60.0, c=0.9))
+    _fit(300.0, 200.0, box, {"eddy": (0.0, 0.2), "excess": (0.0, 2.0)})
+    wider = jh.Bounds(SOFT.replace(a=5.0, k=2.0, c=0.0), SOFT.replace(a=150.0, k=90.0, c=1.0))
+    with counting() as names:
+        _fit(500.0, 150.0, wider, {"eddy": (0.0, 0.4), "excess": (0.0, 1.0)})
+    assert names == []
