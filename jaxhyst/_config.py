@@ -33,9 +33,6 @@ import warnings
 from pathlib import Path
 
 LOOP_THRESHOLD_BYTES = 4194304
-#: The persistent compilation cache's size limit (bytes), beyond which JAX evicts the
-#: least recently used programs; setting one also turns on JAX's file lock (`filelock`).
-CACHE_MAX_BYTES = 4 * 1024**3
 _LOOP_OPTION = f"xla_cpu_small_while_loop_byte_threshold={LOOP_THRESHOLD_BYTES}"
 _loop_flag_state = "not applied"
 
@@ -123,9 +120,7 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None) -> Path
     """Turn on JAX's persistent compilation cache, so that a later process's first call
     of a jitted simulation or solver is loaded from disk instead of recompiled (compiles
     take seconds). ``directory`` defaults to `cache_dir` (``JAXHYST_CACHE_DIR=off``:
-    nothing is done). A cache directory the user already configured in JAX is respected,
-    as is a size limit they set; otherwise the cache is limited to `CACHE_MAX_BYTES`,
-    which also makes processes sharing it lock each read and write.
+    nothing is done). A cache directory the user already configured in JAX is respected.
     Affects every JAX program of the process. Returns the directory in use, or None."""
     import jax
 
@@ -139,11 +134,6 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None) -> Path
     except OSError:  # read-only home etc.: run without a cache rather than fail
         return None
     jax.config.update("jax_compilation_cache_dir", str(target))
-    # A size limit makes JAX take a file lock for every read and write of the cache, so
-    # that processes sharing it (CLI runs side by side, identify-many's workers) never
-    # read an entry another is still writing; least recently used entries go beyond it.
-    if jax.config.jax_compilation_cache_max_size == -1:
-        jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
     # Cache even small compilations: a time loop takes seconds to compile.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)

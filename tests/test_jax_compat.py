@@ -92,27 +92,6 @@ def test_a_warning_says_once_when_the_xla_setting_cannot_be_applied(setup, env):
     assert "slower" in r.stderr and "JAXHYST_XLA_FLAGS=off" in r.stderr
 
 
-def test_the_compilation_cache_locks_each_read_and_write_across_processes(tmp_path):
-    """Processes sharing the cache (CLI runs side by side, identify-many's workers) take
-    JAX's file lock, which it only uses where the cache has a size limit."""
-    import os
-    import subprocess
-    import sys
-
-    code = ("import jaxhyst, jax, jax.numpy as jnp\n"
-            "d = jaxhyst.enable_compilation_cache()\n"
-            "jax.config.update('jax_persistent_cache_min_compile_time_secs', 0)\n"
-            "jax.jit(lambda x: jnp.sin(x) * 2)(jnp.ones(3)).block_until_ready()\n"
-            "print(d, jax.config.jax_compilation_cache_max_size)")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                       env={**os.environ, "JAXHYST_CACHE_DIR": str(tmp_path)}, timeout=120)
-    assert r.returncode == 0, r.stderr
-    directory, limit = r.stdout.split()
-    assert directory == str(tmp_path) and int(limit) == jh._config.CACHE_MAX_BYTES
-    assert (tmp_path / ".lockfile").exists(), sorted(p.name for p in tmp_path.iterdir())
-    assert any(p.name.endswith("-cache") for p in tmp_path.iterdir())
-
-
 def test_compiled_programs_are_released_before_the_mapping_limit(monkeypatch):
     """XLA aborts a process that reaches vm.max_map_count inside a compilation; between
     units of work the compiled programs are dropped where half of it is in use."""

@@ -66,14 +66,14 @@ def check_outputs(args, *, directory: str | None = None) -> None:
 
         from jaxhyst.plots import FIGURE_FORMATS, figure_format
 
-        if not writes_in_place(Path(args.png).expanduser()) and \
-                figure_format(args.png) is None:
+        if args.png is not True and not writes_in_place(Path(args.png).expanduser()) \
+                and figure_format(args.png) is None:  # (reproduce's --png is a flag)
             raise CLIError(f"--png {args.png}: figures are written as "
                            f"{', '.join('.' + f for f in FIGURE_FORMATS)}; give a file name "
                            "with one of those extensions.")
 
         if importlib.util.find_spec("matplotlib") is None:
-            raise CLIError(f"--png {args.png}: figures need matplotlib; pip install "
+            raise CLIError("--png: figures need matplotlib; pip install "
                            "'jaxhyst[plots]' or leave --png out.")
 
 
