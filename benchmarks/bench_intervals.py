@@ -56,9 +56,10 @@ def run_case(frequency: float, replicates: int, noise: float):
             t_fit.append(t1 - t0)
             t_profile.append(t2 - t1)
         nonlinear = set(rep.nonlinear())
-        for name, (lo, hi) in rep.intervals.items():
-            if lo is None or not np.isfinite(lo):
+        for name, ends in rep.intervals.items():
+            if ends is None or not np.all(np.isfinite(ends)):  # (not determined)
                 continue
+            lo, hi = ends
             seen[name] = seen.get(name, 0) + 1
             cover[name] = cover.get(name, 0) + int(lo <= q[name] <= hi)
             se = rep.std_errors[name]
@@ -66,7 +67,7 @@ def run_case(frequency: float, replicates: int, noise: float):
             wald[name] = wald.get(name, 0) + int(abs(v - q[name]) <= 1.96 * se)
             flagged[name] = flagged.get(name, 0) + int(name in nonlinear)
         for label, c in combination_check(rep, truth).items():
-            if c["covers"] is None:
+            if c["covers"] is None or label in rep.intervals:  # (a parameter: done above)
                 continue
             seen[label] = seen.get(label, 0) + 1
             cover[label] = cover.get(label, 0) + int(c["covers"])
