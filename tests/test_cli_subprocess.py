@@ -14,7 +14,7 @@ from conftest import CLI_CHAINS
 
 import jaxhyst as jh
 
-TIMEOUT = 900  # s, per chain
+TIMEOUT = 1800  # s, per chain (the docs chain took 1 122 s on a loaded 2-core VM)
 
 
 def _finished(chain):
