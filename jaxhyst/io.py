@@ -187,8 +187,15 @@ def read_loops(path, columns: list[str] | str | None = None, *,
         raise DataError(f"data file {str(path)!r} is a directory; give the file inside it.")
     if not path.is_file():
         raise DataError(f"data file {str(path)!r} does not exist.")
+    raw = path.read_bytes()
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):  # UTF-16 with its byte-order mark
+        try:
+            raw = raw.decode("utf-16").encode("utf-8")
+        except UnicodeDecodeError:
+            raise DataError(f"data file {str(path)!r} starts as UTF-16 text but does not "
+                            "decode as it; save it as UTF-8 CSV/TSV text.") from None
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as err:
         raise DataError(f"data file {str(path)!r} is not text (byte {err.start} is not "
                         "UTF-8); export it as CSV/TSV text.") from None
@@ -226,8 +233,11 @@ def read_loops(path, columns: list[str] | str | None = None, *,
             table = np.empty((len(body), len(columns)))
         cells = _split(ln, delim)
         if len(cells) != len(columns):
+            hint = ("; the numbers seem to use decimal commas: write them with points, or "
+                    "separate the columns by ';' or tabs" if delim == "," and
+                    len(cells) == 2 * len(columns) else "")
             raise DataError(f"{path.name} line {lineno}: {len(cells)} values for "
-                            f"{len(columns)} columns.")
+                            f"{len(columns)} columns{hint}.")
         for c, cell in enumerate(cells):
             try:
                 v = float(cell)

@@ -54,6 +54,8 @@ def _files(d):
         "ref_nan": b"t [s],y [um]\n" + b"".join(f"{1e-4 * i},{10 + i % 3}\n".encode()
                                                  for i in range(20)) + b"2e-3,nan\n",
         "bounds_spread": json.dumps({"spread": [0.1, 2.0]}).encode(),
+        "utf16": "H,B\n1,2\n3\n".encode("utf-16"),  # read as text: then the ragged row
+        "decimal_commas": b"H,B\n1,5,0,25\n2,5,0,5\n",
     }.items():
         f = d / name
         f.write_bytes(content)
@@ -120,6 +122,10 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     (["identify", "{ok}", "--method", "lm", "--checkpoint", "{checkpoint_text}"], 2,
      "apply to the hybrid GAs"),
     (["identify", "{ok}", "--seed", "-1"], 2, "--seed"),
+    (["identify", "{ok}", "--method", "GATR1", "--population", "1"], 2,
+     "--population 1: a hybrid's population needs at least 4"),
+    (["identify", "{utf16}"], 2, "line 3: 1 values for 2 columns"),  # UTF-16 decoded
+    (["identify", "{decimal_commas}"], 2, "decimal commas"),
     (["identify", "{ok}", "--starts", "0"], 2, "--starts"),
     (["identify", "{ok}", "--substeps", "1.5"], 2, "--substeps"),
     (["identify", "{ok}", "--out", "{ok}/r.json"], 2, "cannot write in"),

@@ -167,6 +167,10 @@ def check_options(args) -> dict:
     if args.leave_one_out and spec["per_loop"]:
         raise CLIError("--leave-one-out predicts a loop from the others: its parameters must "
                        "be shared or given by --vary, not --per-loop.")
+    if args.method in HYBRID and args.population is not None and args.population < 4:
+        raise CLIError(f"--population {args.population}: a hybrid's population needs at "
+                       "least 4 members (its second stage keeps max(4, population/4) and "
+                       "two elites); give 4 or more (the paper: 120).")
     if args.method in HYBRID and args.start:
         raise CLIError("--start applies to the local solvers (e.g. --method lm); a hybrid GA "
                        "searches the whole box.")
