@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import tempfile
 
 import numpy as np
@@ -122,6 +123,7 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     (["identify", "{ok}", "--method", "lm", "--checkpoint", "{checkpoint_text}"], 2,
      "apply to the hybrid GAs"),
     (["identify", "{ok}", "--seed", "-1"], 2, "--seed"),
+    (["identify", "{ok}", "--out", "/proc/r.json"], 2, "cannot write in /proc"),
     (["identify", "{ok}", "--method", "GATR1", "--population", "1"], 2,
      "--population 1: a hybrid's population needs at least 4"),
     (["identify", "{utf16}"], 2, "line 3: 1 values for 2 columns"),  # UTF-16 decoded
@@ -365,3 +367,11 @@ def test_simulate_on_random_valid_inputs_is_finite_or_says_it_diverged(
         return
     for name in ("M", "Man", "lam", "y", "strain"):
         assert np.all(np.isfinite(np.asarray(getattr(sim, name)))), name
+
+
+def test_a_negative_value_read_as_an_option_is_explained(monkeypatch, capsys):
+    argv = ["frequency-response", "--frequencies", "-5,10"]
+    monkeypatch.setattr(sys, "argv", ["jaxhyst", *argv])
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--frequencies=-5,10" in err, err

@@ -53,4 +53,17 @@ class Parser(argparse.ArgumentParser):
     block; ``--help`` has the rest."""
 
     def error(self, message):
+        import re
+        import sys
+
+        if message.endswith("expected one argument"):  # a value such as -5,10 looks
+            # like an option to argparse: say how to give it
+            opt = re.search(r"argument (--?[\w-]+)", message)
+            argv = sys.argv[1:]
+            if opt and opt.group(1) in argv:
+                i = argv.index(opt.group(1))
+                nxt = argv[i + 1] if i + 1 < len(argv) else ""
+                if re.match(r"-[\d.]", nxt):
+                    message += (f" (a value that starts with '-' is written with '=': "
+                                f"{opt.group(1)}={nxt})")
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")

@@ -28,6 +28,17 @@ def variant_from_name(name: str, cells: int | None = None):
     return cls()
 
 
+def _can_create_in(directory: Path) -> bool:
+    """Whether a file can really be made there (permissions say yes for root on /proc)."""
+    import tempfile
+
+    try:
+        with tempfile.NamedTemporaryFile(dir=directory, prefix=".jaxhyst-probe-"):
+            return True
+    except OSError:
+        return False
+
+
 def check_outputs(args, *, directory: str | None = None) -> None:
     """Check the output paths before any work: each file option (``--csv``, ``--png``,
     ``--out``, ``--save-model``) must name a file whose directory exists or can be made
@@ -58,7 +69,8 @@ def check_outputs(args, *, directory: str | None = None) -> None:
             parent = path.parent
         while not parent.exists():  # made on writing: the nearest existing one decides
             parent = parent.parent
-        if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK) \
+                or not _can_create_in(parent):
             raise CLIError(f"{flag} {value}: cannot write in {parent}; choose a writable "
                            "location.")
     if vars(args).get("png"):
