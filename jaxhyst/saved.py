@@ -61,7 +61,11 @@ class Model(eqx.Module):
       such as `jaxhyst.PlayJA`, whose own parameters it carries); ``substeps``: RK4
       substeps per sample;
     - ``losses``: `jaxhyst.Losses` of the rate-dependent model, or None (rate
-      independent).
+      independent);
+    - ``law`` and ``coefficients``: for a fit of a condition law (``identify --vary``,
+      `jaxhyst.ConditionProblem`), its `jaxhyst.ConditionModel` (with the references and
+      fitted range) and its coefficients ``{name: value}``; ``params`` then hold the
+      fitted records' sets (leaves (L,)) and `at` gives the model at a new condition.
     """
 
     params: Parameters
@@ -69,6 +73,36 @@ class Model(eqx.Module):
     variant: eqx.Module = EnergyBasedJA()
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
     losses: Losses | None = None
+    law: object = eqx.field(static=True, default=None)
+    coefficients: dict | None = None
+
+    def at(self, frequency: float | None = None, temperature: float | None = None,
+           amplitude: float | None = None) -> Model:
+        """The model at one condition (frequency in Hz, temperature in °C, amplitude: the
+        peak field in A/m, or the peak flux density in T for a B-driven fit), from its
+        condition law: one parameter set (leaves of shape ()) and no law. A condition
+        outside the fitted range warns (`jaxhyst.ConditionWarning`); one the law needs
+        and not given is a one-line ``ValueError``."""
+        from .identify.conditions import Conditions
+
+        if self.law is None:
+            raise ValueError("this model has no condition law (it was not fitted with "
+                             "identify --vary / a ConditionProblem): it has no condition "
+                             "to be evaluated at.")
+        given = {"frequency": frequency, "temperature": temperature, "amplitude": amplitude}
+        conditions = Conditions(**{k: None if v is None else (float(v),)
+                                   for k, v in given.items()})
+        self.law.warn_outside(conditions)
+        values = self.law.evaluate(self.coefficients, self.law.feature_values(conditions))
+        params = Parameters(**{n: jnp.asarray(values[n][0]) for n in NAMES})
+        losses = (Losses(jnp.asarray(values["eddy"][0]), jnp.asarray(values["excess"][0]))
+                  if self.losses is not None else None)
+        variant = self.variant
+        own = list(own_parameters(variant))
+        if own:
+            variant = eqx.tree_at(lambda f: [getattr(f, n) for n in own], variant,
+                                  [jnp.asarray(values[n][0]) for n in own])
+        return Model(params, self.actuator, variant, self.substeps, losses)
 
     def simulate(self, drive: Drive) -> Simulation:
         """Every signal for ``drive`` (`jaxhyst.simulate`; one parameter set)."""
@@ -100,8 +134,10 @@ class Model(eqx.Module):
         else:
             shown = f"{np.shape(self.params.Ms)[0]} parameter sets (one per loop)"
         losses = "" if self.losses is None else ", rate-dependent"
+        law = "" if self.law is None else \
+            f"; condition law {', '.join(self.law.coefficient_names())} (.at(…))"
         return (f"Model({type(self.variant).__name__}: {shown}; {self.actuator.name}; "
-                f"{self.substeps} substeps{losses})")
+                f"{self.substeps} substeps{losses}{law})")
 
     def _tree(self):
         """The model's parameter pytree (`jaxhyst.model.paths.split_parameters`)."""
@@ -134,11 +170,38 @@ def save_model(path: str | os.PathLike, model: Model, **meta) -> None:
                            "has_turns": model.actuator.n is not None},
               "has_losses": model.losses is not None,
               "form_settings": _form_settings(model.variant),
+              "law": _law_header(model),
               "versions": _versions(), "meta": meta}
     buf = io.BytesIO()
     buf.write(json.dumps(header).encode("utf-8") + b"\n")
     eqx.tree_serialise_leaves(buf, model)
     write_bytes(path, buf.getvalue())
+
+
+def _law_header(model: Model) -> dict | None:
+    """The condition law of ``model`` as JSON (its coefficients' names; their values go
+    with the arrays), or None."""
+    law = model.law
+    if law is None:
+        return None
+    return {"varying": {n: list(f) for n, f in law.varying}, "degree": law.degree,
+            "reference": dict(law.reference),
+            "fitted_range": {f: list(r) for f, r in law.fitted_range},
+            "units": dict(law.units), "coefficients": sorted(model.coefficients)}
+
+
+def _law_of(header: dict):
+    """(the `ConditionModel`, a template of its coefficients) of a file's header, or
+    (None, None)."""
+    law = header.get("law")
+    if not law:
+        return None, None
+    from .identify.conditions import ConditionModel
+
+    model = ConditionModel(law["varying"], law["degree"], law["reference"],
+                           {f: tuple(r) for f, r in law["fitted_range"].items()},
+                           law.get("units", {}))
+    return model, {n: jnp.zeros(()) for n in law["coefficients"]}
 
 
 def _form_settings(form) -> dict:
@@ -189,7 +252,9 @@ def load_model(path: str | os.PathLike, variant: AbstractJAVariant | None = None
     act = header["actuator"]
     actuator = Actuator(1.0, 1.0, 1.0 if act["has_turns"] else None, 0.0, name=act["name"])
     losses = Losses(jnp.zeros(shape), jnp.zeros(shape)) if header.get("has_losses") else None
-    like = Model(params, actuator, variant, int(header["substeps"]), losses)
+    law, coefficients = _law_of(header)
+    like = Model(params, actuator, variant, int(header["substeps"]), losses, law,
+                 coefficients)
     with open(os.fspath(path), "rb") as fh:
         fh.readline()
         try:

@@ -166,8 +166,9 @@ def test_predict_reproduces_the_fit_and_leave_one_out_reports_each_loop(tmp_path
     out = tmp_path / "fit.json"
     common = ["--joint", "--method", "lm", "--variant", "classic", "--substeps", "4",
               "--max-steps", "15", "--fix", f"Ms={float(jh.TABLE1_TRUE.Ms)!r}"]
+    law = tmp_path / "law.eqx"
     rc = main(["identify", str(data), *common, "--vary", "k:log_f", "--leave-one-out",
-               "--out", str(out), "--json"])
+               "--out", str(out), "--save-model", str(law), "--json"])
     assert rc in (0, 3, 4)
     printed = json.loads(capsys.readouterr().out)
     saved = json.loads(out.read_text())
@@ -195,6 +196,22 @@ def test_predict_reproduces_the_fit_and_leave_one_out_reports_each_loop(tmp_path
         np.testing.assert_array_equal(mine, want[i][mask[i]])
         B = got["data"][got["loop"] == i]
         assert rows[i]["rms"] == pytest.approx(np.sqrt(np.mean((mine - B) ** 2)), rel=1e-12)
+
+    # the saved model keeps the law: at 400 Hz it is the fit's loop 1, from Python and
+    # from the command line (a sinusoid of the loop's amplitude: its B within 1 %)
+    model = jh.load_model(law)
+    at = model.at(frequency=400.0)
+    want = problem.at(coef, jh.Conditions(frequency=[400.0]))
+    np.testing.assert_array_equal(np.asarray(at.params.to_array()),
+                                  np.asarray(want.to_array())[0])
+    sim_csv = tmp_path / "sim.csv"
+    assert main(["simulate", "--model", str(law), "--frequency", "400", "--field-amplitude",
+                 "12000", "--csv", str(sim_csv), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    loop1 = got["data"][got["loop"] == 1]
+    assert summary["B_max_T"] == pytest.approx(np.max(loop1), rel=0.01)
+    assert main(["simulate", "--model", str(law), "--field-amplitude", "12000"]) == 2
+    assert "varies with the frequency; give --frequency" in capsys.readouterr().err
 
     # at another amplitude: the loops' fields scaled, the data not compared, a figure
     fig = tmp_path / "pred.svg"

@@ -292,6 +292,7 @@ def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
     model = jh.load_model(tmp_path / "m.eqx")
     assert isinstance(model.variant, jh.ClassicJA)
     assert float(model.params.k) == res["params"]["k"]["value"]
+    assert model.actuator.name == NO_ACTUATOR.name  # (a material's B loop: no actuator)
     assert json.loads(capsys.readouterr().out)["outcome"] == "max_steps_reached"
     helps = build_parser()._subparsers._group_actions[0].choices["identify"].format_help()
     assert "3 the fit stopped" in " ".join(helps.split())

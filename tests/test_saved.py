@@ -86,3 +86,43 @@ def test_a_rate_dependent_model_keeps_its_loss_coefficients(tmp_path):
     assert jh.load_model(tmp_path / "dyn.eqx").losses is not None
     jh.save_model(tmp_path / "static.eqx", jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1))
     assert jh.load_model(tmp_path / "static.eqx").losses is None
+
+
+def test_a_condition_law_is_saved_and_evaluated_at_a_new_amplitude(tmp_path):
+    """A ``--vary`` fit's model keeps its law: saved, loaded and evaluated at an amplitude
+    between the fitted ones it gives the parameters the problem's own law gives there; a
+    law-less model and a missing condition are one-line errors."""
+    from jaxhyst.identify.joint import NO_ACTUATOR
+
+    amplitudes = (6e3, 12e3, 24e3)
+    drives = [jh.drive_from_record(None, A * np.cos(2 * np.pi * np.arange(41) / 40))
+              for A in amplitudes]
+    p = jh.TABLE1_TRUE
+    bounds = jh.Bounds(p.replace(k=0.5 * float(p.k), a=0.5 * float(p.a)),
+                       p.replace(k=2 * float(p.k), a=2 * float(p.a)))
+    records = jh.JointProblem([np.sin(np.arange(41.0))] * 3, drives, NO_ACTUATOR,
+                              jh.per_record_space(bounds, 3), output="magnetization",
+                              variant=jh.ClassicJA(), substeps=2)
+    law = jh.ConditionModel({"k": ("log_amplitude",), "a": ("log_amplitude",)})
+    problem = jh.ConditionProblem(records, jh.Conditions(amplitude=amplitudes), law,
+                                  jh.condition_space(bounds, law))
+    coefficients = {**{n: float(getattr(p, n)) for n in jh.NAMES},
+                    "k:log_amplitude": 0.4, "a:log_amplitude": -0.2}
+    model = problem.model(coefficients)
+    assert "condition law" in repr(model)
+    jh.save_model(tmp_path / "law.eqx", model)
+    back = jh.load_model(tmp_path / "law.eqx")
+    assert back.law == model.law and np.shape(back.params.Ms) == (3,)
+    at = back.at(amplitude=9e3)
+    want = problem.at(coefficients, jh.Conditions(amplitude=[9e3]))
+    for name in jh.NAMES:
+        assert float(getattr(at.params, name)) == pytest.approx(
+            float(getattr(want, name)[0]), rel=1e-12), name
+    assert float(at.params.k) != pytest.approx(float(p.k))  # the law moved it
+    assert at.law is None and np.ndim(at.params.Ms) == 0
+    with pytest.warns(jh.ConditionWarning, match="outside the fitted range"):
+        back.at(amplitude=50e3)
+    with pytest.raises(ValueError, match="carry none"):
+        back.at(frequency=50.0)
+    with pytest.raises(ValueError, match="has no condition law"):
+        jh.Model(p, jh.ACTUATOR1).at(amplitude=9e3)

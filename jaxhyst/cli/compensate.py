@@ -151,10 +151,16 @@ def _model(args):
     import jaxhyst as jh
 
     if args.model:
-        try:
-            model = jh.load_model(args.model)
-        except FileNotFoundError:
-            raise CLIError(f"--model {args.model}: no such file.") from None
+        from .models import model_at, read_model
+
+        model = read_model(args.model)
+        other = [f for f in (model.law.features if model.law is not None else ())
+                 if f != "log_f"]
+        if other:
+            raise CLIError(f"--model {args.model}: its condition law varies with "
+                           f"{', '.join(other)}; compensate evaluates a law of the frequency "
+                           "only: save model.at(…) from Python (jaxhyst.save_model) first.")
+        model = model_at(args, model, args.model, frequency=args.frequency)
         if str(model.actuator.name).startswith("none"):
             raise CLIError(f"--model {args.model}: a model of a material alone (fitted to M or "
                            "B loops) has no actuator to compensate; fit displacement data, or "

@@ -248,8 +248,14 @@ def run(args) -> int:
     if args.out:
         write_json(args.out, d)
     if args.save_model:
-        fitted, params = joint_view(problem, result.params)
-        jh.save_model(args.save_model, fitted.model(params), data=spec["data"],
+        model = problem.model(result.params)
+        records = records_of(problem)
+        if all(o in MAGNETIC_OUTPUT_NAMES
+               for o in getattr(records, "outputs", None) or (records.output,)):
+            from jaxhyst.identify.joint import NO_ACTUATOR  # (a material: no actuator)
+
+            model = eqx_replace_actuator(model, NO_ACTUATOR)
+        jh.save_model(args.save_model, model, data=spec["data"],
                       outcome=result.result, rms_error=result.rms_error,
                       output=result.output)
     wrote = [f for f in (args.out, args.save_model, *figures) if f]
@@ -362,3 +368,10 @@ def _exit_status(result) -> int:
     box = [n for n, (_, bound) in result.at_bound.items()
            if not at_physical_limit(n, bound)]  # (a physical limit is the model's, fine)
     return 4 if box else 0
+
+
+def eqx_replace_actuator(model, actuator):
+    """``model`` with another actuator (a material's fit keeps none)."""
+    import equinox as eqx
+
+    return eqx.tree_at(lambda m: m.actuator, model, actuator)

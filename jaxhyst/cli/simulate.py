@@ -28,8 +28,14 @@ def add_parser(sub) -> None:
                         help="parameters when --params is not given")
     parser.add_argument("--params", help="table1, table3:<Hz> or a JSON file {name: value} "
                         "(a result JSON also works)")
-    parser.add_argument("--actuator", default="actuator1",
-                        help="actuator1, actuator2 or a JSON file {Ar, lr, n, Hb}")
+    parser.add_argument("--actuator",
+                        help="actuator1 (default), actuator2 or a JSON file {Ar, lr, n, Hb}")
+    parser.add_argument("--model", help="a saved model (identify --save-model) instead of "
+                        "--params/--actuator/--variant/--substeps/--eddy/--excess; a "
+                        "condition law (identify --vary) is evaluated at --frequency, "
+                        "--temperature and the drive's amplitude")
+    parser.add_argument("--temperature", type=FINITE, help="with --model: the temperature, "
+                        "°C, of a law that varies with it")
     parser.add_argument("--frequency", type=POSITIVE, help="drive frequency, Hz (default 100)")
     parser.add_argument("--amplitude", type=FINITE, help="current amplitude, A (default 0.77)")
     parser.add_argument("--offset", type=FINITE, help="current offset (bias), A (default 1.53)")
@@ -56,10 +62,10 @@ def add_parser(sub) -> None:
     parser.add_argument("--periods", type=POSITIVE, help="observed periods (default 1)")
     parser.add_argument("--samples-per-period", type=POSITIVE_INT,
                         help="samples per drive period (default 200)")
-    parser.add_argument("--substeps", type=POSITIVE_INT, default=DEFAULT_SUBSTEPS,
-                        help="RK4 substeps per sample")
-    parser.add_argument("--variant", choices=VARIANTS, default="energy",
-                        help="Jiles–Atherton form (energy: the paper's)")
+    parser.add_argument("--substeps", type=POSITIVE_INT,
+                        help=f"RK4 substeps per sample (default {DEFAULT_SUBSTEPS})")
+    parser.add_argument("--variant", choices=VARIANTS,
+                        help="Jiles–Atherton form (default energy: the paper's)")
     parser.add_argument("--csv", help="write the signals here (SI units in the header)")
     parser.add_argument("--png", help="write a figure here (needs matplotlib)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -168,7 +174,41 @@ def _losses(args):
     return jh.Losses(eddy=args.eddy or 0.0, excess=args.excess or 0.0)
 
 
-def _run_flux(args, params) -> int:
+def _model(args):
+    """(params, actuator or None, form, substeps, losses) of the run: from --model (its law
+    at the run's conditions) or from the options."""
+
+    if not args.model:
+        if args.temperature is not None:
+            raise CLIError("--temperature goes with --model (a saved condition law).")
+        return (parameters_arg(args.params or args.preset), None,
+                variant_from_name(args.variant or "energy"),
+                args.substeps or DEFAULT_SUBSTEPS, _losses(args))
+    given = [o for o in ("params", "actuator", "variant", "substeps", "eddy", "excess")
+             if getattr(args, o) is not None]
+    if given:
+        raise CLIError(f"--model holds the parameters, actuator, form, substeps and losses; "
+                       f"leave out --{', --'.join(given)}.")
+    from .models import model_at, read_model
+
+    model = read_model(args.model)
+    flux = args.flux_amplitude is not None
+    amplitude = args.flux_amplitude if flux else args.field_amplitude
+    model = model_at(args, model, args.model, frequency=args.given_frequency,
+                     temperature=args.temperature,
+                     amplitude=None if amplitude is None else abs(amplitude),
+                     amplitude_option="--flux-amplitude" if flux else "--field-amplitude",
+                     amplitude_unit="T" if flux else "A/m")
+    material = model.actuator.n is None and str(model.actuator.name).startswith("none")
+    if material and not flux and args.field_amplitude is None and not args.drive:
+        raise CLIError(f"--model {args.model} is a material's model (no coil): drive it by a "
+                       "field (--field-amplitude, or --drive with an H column) or by B "
+                       "(--flux-amplitude).")
+    return (model.params, model.actuator, model.variant,
+            model.substeps, model.losses)
+
+
+def _run_flux(args, params, variant, substeps, losses) -> int:
     """The B-driven model: H(t) for B(t) = amplitude·sin(2πft), and the loss per volume."""
     import numpy as np
 
@@ -177,12 +217,11 @@ def _run_flux(args, params) -> int:
 
     drive = jh.sinusoidal_flux(args.frequency, args.flux_amplitude, periods=args.periods,
                                samples_per_period=args.samples_per_period)
-    sim = jh.simulate_flux(params, drive, variant_from_name(args.variant),
-                           substeps=args.substeps, losses=_losses(args))
+    sim = jh.simulate_flux(params, drive, variant, substeps=substeps, losses=losses)
     H = np.asarray(sim.observed("H"))
     loss = float(sim.loss_density(args.frequency, max(1, int(round(args.periods)))))
     what = f"B = {args.flux_amplitude:g} sin(2π·{args.frequency:g} t) T"
-    summary = {"params": args.params or args.preset, "drive": what,
+    summary = {"params": args.model or args.params or args.preset, "drive": what,
                "samples_observed": int(H.shape[0]), "H_min_A_per_m": float(H.min()),
                "H_max_A_per_m": float(H.max()), "loss_W_per_m3": loss}
     if args.png:
@@ -209,17 +248,21 @@ def run(args) -> int:
     from jaxhyst.io import write_simulation_csv
 
     check_outputs(args)
+    args.given_frequency = args.frequency  # (before the defaults: a law needs it given)
     _check_drive_options(args)
-    params = parameters_arg(args.params or args.preset)
+    params, actuator, variant, substeps, losses = _model(args)
     if args.flux_amplitude is not None:
-        return _run_flux(args, params)
-    actuator = actuator_arg(args.actuator)
+        return _run_flux(args, params, variant, substeps, losses)
+    actuator = actuator or actuator_arg(args.actuator or "actuator1")
     drive, what = _drive_from_args(args, actuator)
-    sim = jh.simulate(params, actuator, drive, variant=variant_from_name(args.variant),
-                      substeps=args.substeps, losses=_losses(args))
+    sim = jh.simulate(params, actuator, drive, variant=variant, substeps=substeps,
+                      losses=losses)
+    if str(actuator.name).startswith("none"):
+        return _material_result(args, sim, params, what)
     y = sim.observed("y")
     summary = {
-        "params": args.params or args.preset, "actuator": actuator.name, "drive": what,
+        "params": args.model or args.params or args.preset, "actuator": actuator.name,
+        "drive": what,
         "samples_observed": int(y.shape[0]), "y_min_m": float(y.min()),
         "y_max_m": float(y.max()), "M_over_Ms_min": float(sim.observed("M").min() / params.Ms),
         "M_over_Ms_max": float(sim.observed("M").max() / params.Ms),
@@ -236,6 +279,36 @@ def run(args) -> int:
     text = [f"simulated {summary['samples_observed']} observed samples ({actuator.name}, {what})",
             f"  y in [{summary['y_min_m'] * 1e6:.3f}, {summary['y_max_m'] * 1e6:.3f}] μm, "
             f"M/Ms in [{summary['M_over_Ms_min']:.3f}, {summary['M_over_Ms_max']:.3f}]"]
+    text += [f"  wrote {summary[k]}" for k in ("csv", "png") if k in summary]
+    print_result(args, summary, "\n".join(text))
+    return 0
+
+
+def _material_result(args, sim, params, what) -> int:
+    """A material's model (no actuator) driven by a field: its B(H) loop."""
+    import numpy as np
+
+    from jaxhyst.identify.outputs import FluxDensity
+    from jaxhyst.io import write_columns_csv
+
+    H = np.asarray(sim.observed("H"))
+    B = np.asarray(FluxDensity().of(sim))[sim.run_in:]
+    summary = {"params": args.model, "drive": what, "samples_observed": int(H.shape[0]),
+               "B_min_T": float(B.min()), "B_max_T": float(B.max()),
+               "M_over_Ms_max": float(np.max(np.abs(sim.observed("M"))) / params.Ms)}
+    if args.png:
+        from jaxhyst.plots import plot_predictions
+
+        plot_predictions([(what, H, B, None)], "flux_density", args.png,
+                         title=f"{args.model}: {what}")
+        summary["png"] = args.png
+    if args.csv:
+        write_columns_csv(args.csv, {n: np.asarray(sim.observed(q)) for n, q in (
+            ("t_s", "t"), ("H_A_per_m", "H"), ("M_A_per_m", "M"))} | {"B_T": B})
+        summary["csv"] = args.csv
+    text = [f"simulated {H.shape[0]} observed samples of the material ({what})",
+            f"  B in [{B.min():.4g}, {B.max():.4g}] T, max |M|/Ms "
+            f"{summary['M_over_Ms_max']:.3f}"]
     text += [f"  wrote {summary[k]}" for k in ("csv", "png") if k in summary]
     print_result(args, summary, "\n".join(text))
     return 0

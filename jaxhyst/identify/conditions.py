@@ -358,6 +358,17 @@ class ConditionProblem(AbstractProblem):
         """The parameters of every fitted record."""
         return self.parameters_at(coefficients, self.features)
 
+    def model(self, coefficients):
+        """The identified model with its condition law (`jaxhyst.Model`: the fitted
+        records' parameter sets, the law and its ``coefficients``; ``Model.at`` evaluates
+        it at a new condition), to save (`jaxhyst.save_model`)."""
+        from ..saved import Model
+
+        m = self.records.model(self.per_record(coefficients))
+        return Model(m.params, m.actuator, m.variant, m.substeps, m.losses,
+                     self.condition_model, {n: jnp.asarray(v) for n, v in
+                                            dict(coefficients).items()})
+
     def at(self, coefficients, conditions: Conditions):
         """The parameters at other ``conditions`` (a prediction; a `ConditionWarning` when
         they lie outside the fitted range)."""

@@ -121,6 +121,16 @@ class FluxProblem(AbstractProblem):
 
         return jax.vmap(one, in_axes=(0 if per_record else None, 0))(params, self.drive)
 
+    def model(self, params):
+        """The identified material model at ``params`` (no actuator: `Model.simulate_flux`
+        drives it by B), to simulate other drives or save (`jaxhyst.save_model`)."""
+        from ..saved import Model
+        from .joint import NO_ACTUATOR
+
+        p, losses, form = split_parameters(params)
+        return Model(p, NO_ACTUATOR, self.variant if form is None else form,
+                     self.substeps, losses)
+
     def predict(self, params) -> jax.Array:
         """The model's field (L, n_obs) or energies per cycle (L,)."""
         sim = self.simulate(params)
