@@ -182,3 +182,44 @@ def test_the_rate_dependent_model_is_identified_from_an_h_driven_loop():
     assert result.report is not None and result.report.rank == 5
     model = problem.model(result.params)
     assert float(model.losses.eddy) == pytest.approx(0.05, rel=1e-6)
+
+
+def test_a_b_driven_fit_from_the_command_line_saves_a_model_driven_by_b(tmp_path, capsys):
+    """``identify --driven-by B``: a file's B(t) drives the model and H is fitted (the
+    parameters that made it come back); the saved model, a material without actuator, is
+    simulated by B from the command line and gives the file's H; what a B-driven fit does
+    not do is one line."""
+    import json
+
+    from jaxhyst.cli import main
+
+    p = jh.Parameters(Ms=3.8e5, lambda_s=0.0, a=30.0, k=25.0, alpha=3e-5, c=0.4, E=1.0,
+                      Kz=1.0, Mz=1.0, Cz=0.0)
+    drive = jh.sinusoidal_flux(50.0, 0.3, samples_per_period=80)
+    sim = jh.simulate_flux(p, drive, jh.ClassicJA(), substeps=4)
+    t, H, B = (np.asarray(sim.observed(q)) for q in ("t", "H", "B"))
+    data = tmp_path / "bh.csv"
+    data.write_text("t [s],H [A/m],B [T]\n" + "".join(
+        f"{float(a - t[0])!r},{float(h)!r},{float(b)!r}\n" for a, h, b in zip(t, H, B,
+                                                                               strict=True)))
+    model = tmp_path / "m.eqx"
+    assert main(["identify", str(data), "--driven-by", "B", "--variant", "classic",
+                 "--substeps", "4", "--starts", "2", "--save-model", str(model),
+                 "--json", "--progress", "0"]) == 0
+    fit = json.loads(capsys.readouterr().out)
+    for name in ("Ms", "a", "k", "alpha", "c"):
+        assert fit["params"][name]["value"] == pytest.approx(float(getattr(p, name)),
+                                                             rel=1e-3), name
+    saved = jh.load_model(model)
+    assert saved.actuator.name == NO_ACTUATOR.name and isinstance(saved.variant, jh.ClassicJA)
+    assert main(["simulate", "--model", str(model), "--flux-amplitude", "0.3", "--frequency",
+                 "50", "--samples-per-period", "80", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["H_max_A_per_m"] == pytest.approx(float(H.max()), rel=1e-3)
+    for argv, message in (
+            (["--driven-by", "B", "--output", "M"], "leave it out"),
+            (["--driven-by", "B", "--joint", "--leave-one-out"], "applies to H-driven fits")):
+        assert main(["identify", str(data), *argv]) == 2
+        assert message in capsys.readouterr().err
+    data.write_text("H [A/m],B [T]\n1,0.1\n2,0.2\n")
+    assert main(["identify", str(data), "--driven-by", "B"]) == 2

@@ -160,10 +160,12 @@ def decimated_first(args, spec, loops, problem, method):
     cost grows linearly with the data. None where it does not apply."""
     import dataclasses
 
+    from jaxhyst.identify.outputs import OUTPUTS as OUTPUT_NAMES
     from jaxhyst.identify.outputs import output_kind
 
     longest = max(lp.n_samples for lp in loops)
     if (longest <= DECIMATE_ABOVE or method in HYBRID or args.start or args.starts <= 1
+            or problem.output not in OUTPUT_NAMES
             or not output_kind(problem.output).magnetic_only):
         return None
     k = -(-longest // DECIMATED)

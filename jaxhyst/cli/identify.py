@@ -9,6 +9,7 @@ from jaxhyst._files import writes_in_place
 from jaxhyst.names import DEFAULT_SUBSTEPS, MAGNETIC_OUTPUT_NAMES
 
 from .fitting import decimated_first, fit_by_options, widen_derived_box
+from .flux_fit import check_flux_options, flux_figure
 from .heldout import (
     CANDIDATES,
     check_comparison,
@@ -44,6 +45,11 @@ def add_parser(sub) -> None:
     parser.add_argument("--output", choices=("y", "strain", "lambda", "M", "B"),
                         help="observed column (needed when the file has several)")
     parser.add_argument("--loop", type=COUNT, help="which loop of a multi-loop file")
+    parser.add_argument("--driven-by", choices=("H", "B"), default="H",
+                        help="H (default): the file's field drives the model and its "
+                        "signal is fitted; B: its flux density B(t) drives the model (the "
+                        "B-driven model of a material: columns t, H and B) and the field H "
+                        "is fitted")
     parser.add_argument("--joint", action="store_true", help="fit all loops of the file as one "
                         "problem (parameters shared unless listed in --per-loop)")
     parser.add_argument("--per-loop", help="with --joint: parameters free per loop, e.g. "
@@ -127,7 +133,7 @@ def _method(args, problem) -> str:
     """--method auto: GATR1 (the paper) for actuator outputs, multi-start LM for M/B."""
     if args.method != "auto":
         return args.method
-    return "lm" if problem.output in MAGNETIC_OUTPUT_NAMES else "GATR1"
+    return "lm" if problem.output in (*MAGNETIC_OUTPUT_NAMES, "field") else "GATR1"
 
 
 def _read_start(args):
@@ -156,7 +162,9 @@ def check_options(args) -> dict:
             "variant": None, "cells": args.cells, "losses": _losses(args.losses),
             "joint": args.joint,
             "per_loop": [n.strip() for n in (args.per_loop or "").split(",") if n.strip()],
-            "vary": args.vary, "vary_degree": args.vary_degree or 1}
+            "vary": args.vary, "vary_degree": args.vary_degree or 1,
+            "driven_by": args.driven_by}
+    check_flux_options(args)
     if args.vary_degree is not None and not args.vary:
         raise CLIError(f"--vary-degree {args.vary_degree} shapes the laws of --vary; give "
                        "--vary (e.g. 'k:log_f').")
@@ -327,9 +335,14 @@ def _identify_figure(args, problem, result, has_t: bool) -> list[str]:
     written."""
     import numpy as np
 
+    import jaxhyst as jh
     from jaxhyst.plots import plot_fit, plot_history
 
     flags = (" — at bound: " + ", ".join(result.at_bound)) if result.at_bound else ""
+    if isinstance(records_of(problem), jh.FluxProblem):
+        flux_figure(problem, result.params, args.png,
+                    f"{result.solver}: B-driven, measured and fitted H{flags}")
+        return [args.png]
     if args.joint:
         problem, params = joint_view(problem, result.params)
         pred = np.asarray(problem.predict_loops(params))

@@ -53,6 +53,10 @@ def run(args) -> int:
 
     check_outputs(args)
     saved, spec, fitted, params = load_result(args.result)
+    if isinstance(records_of(fitted), jh.FluxProblem):
+        raise CLIError(f"{args.result} is a B-driven fit (--driven-by B): predict reads "
+                       "H-driven fits; simulate its saved model (identify --save-model) with "
+                       "'jaxhyst simulate --model FILE --flux-amplitude B --frequency F'.")
     source = args.data or spec["data"]
     loops = read_loops(source, spec.get("columns"))
     if args.loop:

@@ -262,6 +262,12 @@ def build_problem(spec: dict, loops=None):
     form = form_from_spec(spec)
     fixed = dict(spec.get("fixed") or {})
     substeps = _substeps(spec, form, loops)
+    if spec.get("driven_by") == "B":
+        from .flux_fit import flux_problem
+
+        if not spec.get("joint"):
+            loops = _chosen_loop(spec, loops, ids)
+        return flux_problem(spec, loops, bounds, fixed, form, substeps)
     if spec.get("joint"):
         out = loop_signal(spec, loops[0], spec.get("output"))
         if output_kind(SIGNAL_OUTPUTS[out]).magnetic_only:
@@ -308,18 +314,22 @@ def build_problem(spec: dict, loops=None):
             return jh.ConditionProblem(records, conditions, model, cspace)
         except ValueError as err:
             raise CLIError(f"--vary: {err}") from None
-    if spec.get("loop") is None:
-        if len(loops) > 1:
-            raise CLIError(f"{spec['data']} holds loops {ids}; choose one with --loop, or fit "
-                           "them together with --joint.")
-        loop = loops[0]
-    else:
-        if spec["loop"] not in ids:
-            raise CLIError(f"--loop {spec['loop']}: {spec['data']} holds loops {ids}.")
-        loop = loops[ids.index(spec["loop"])]
+    loop = _chosen_loop(spec, loops, ids)[0]
     out = loop_signal(spec, loop, spec.get("output"))
     if output_kind(SIGNAL_OUTPUTS[out]).magnetic_only:
         fixed = fix_structural(bounds, fixed)
     return jh.Problem(loop.signals[out], loop_drive(spec, loop, out, actuator), actuator,
                       model_space(spec, bounds, fixed), output=SIGNAL_OUTPUTS[out],
                       variant=form, substeps=substeps)
+
+
+def _chosen_loop(spec, loops, ids) -> list:
+    """[the loop a single-loop fit is of] (``--loop``, or the file's only loop)."""
+    if spec.get("loop") is None:
+        if len(loops) > 1:
+            raise CLIError(f"{spec['data']} holds loops {ids}; choose one with --loop, or fit "
+                           "them together with --joint.")
+        return [loops[0]]
+    if spec["loop"] not in ids:
+        raise CLIError(f"--loop {spec['loop']}: {spec['data']} holds loops {ids}.")
+    return [loops[ids.index(spec["loop"])]]
