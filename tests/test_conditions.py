@@ -255,3 +255,13 @@ def test_condition_columns_are_read_per_loop_and_must_be_constant_within_it(tmp_
     bad.write_text("\n".join(rows[:5] + [rows[5].replace(",25,", ",26,")] + rows[6:]) + "\n")
     with pytest.raises(DataError, match="the temperature of loop 0 changes within the loop"):
         read_loops(bad)
+
+
+def test_every_coefficient_of_a_law_is_printed_with_its_unit():
+    from jaxhyst.analysis.wording import unit_of
+
+    assert unit_of("k") == "A/m" and unit_of("k[1]") == "A/m"
+    assert unit_of("k:log_f") == "1 (power of f)"  # k ∝ f^s
+    assert unit_of("c:log_amplitude") == "1 per ln amplitude"  # c additive
+    assert unit_of("a:T") == "1 per 10 K (exponent)"
+    assert unit_of("alpha:T^2") == "1 per (10 K)²"

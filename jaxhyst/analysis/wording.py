@@ -7,7 +7,7 @@ import re
 
 import numpy as np
 
-from ..model.paths import PARAMETER_UNITS
+from ..model.paths import parameter_unit
 
 #: The two-sided 95 % quantile of a standard normal.
 Z95 = 1.959963984540054
@@ -38,8 +38,8 @@ def transform_text(exponents: dict) -> str:
 
 
 def unit_of(name: str) -> str:
-    """A parameter's unit (its base name's)."""
-    base = base_name(name)
-    return PARAMETER_UNITS.get(base, "")
+    """A parameter's unit (its base name's; a condition law's coefficient: see
+    `jaxhyst.model.paths.parameter_unit`)."""
+    return parameter_unit(base_name(name))
 
 

@@ -165,6 +165,8 @@ def check_options(args) -> dict:
             "vary": args.vary, "vary_degree": args.vary_degree or 1,
             "driven_by": args.driven_by}
     check_flux_options(args)
+    if args.driven_by == "B":  # (the B(H) loop the box is derived from)
+        spec["output"] = "B"
     if args.vary_degree is not None and not args.vary:
         raise CLIError(f"--vary-degree {args.vary_degree} shapes the laws of --vary; give "
                        "--vary (e.g. 'k:log_f').")

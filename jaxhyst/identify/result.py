@@ -18,7 +18,7 @@ import numpy as np
 import optimistix as optx
 
 from ..model.accuracy import sampling_message
-from ..model.paths import PARAMETER_UNITS, model_values
+from ..model.paths import PARAMETER_UNITS, model_values, parameter_unit
 from ..params import STRUCTURAL, Parameters, at_physical_limit
 from .outputs import MAGNETIC_OUTPUTS
 
@@ -322,7 +322,7 @@ class IdentificationResult:
                 lines.append(f"  {n:<9}= {text} {PARAMETER_UNITS.get(n, '')}{mark}")
         else:
             for n, v in zip(self.free, self.values, strict=True):
-                lines.append(f"  {n:<9}= {v:>13.6g}")
+                lines.append(f"  {n:<9}= {v:>13.6g} {parameter_unit(n)}".rstrip())
         if self.report is not None:
             lines.append(str(self.report))
         elif self.report_error:

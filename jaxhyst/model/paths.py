@@ -32,6 +32,29 @@ PARAMETER_UNITS = {**UNITS, **LOSS_UNITS, **PlayJA.own_parameters,
 #: The built-in forms' own parameters (`own_parameters`).
 OWN_NAMES = tuple(dict.fromkeys([*PlayJA.own_parameters, *PreisachJA.own_parameters]))
 
+#: A condition feature's variable in a coefficient's unit.
+_FEATURE_WORDS = {"log_f": "ln f", "log_amplitude": "ln amplitude", "T": "10 K"}
+
+
+def parameter_unit(name: str) -> str:
+    """A parameter's unit; for a coefficient of a condition law
+    (``k:log_f``, ``c:T^2``: `jaxhyst.ConditionModel`) the unit of its slope — a
+    dimensionless exponent for a parameter that varies multiplicatively (θ ∝ f^s: "1,
+    power of f"), the parameter's unit per feature unit for α̃ and c."""
+    if ":" not in name:
+        return PARAMETER_UNITS.get(name, "")
+    param, _, feature = name.partition(":")
+    square = feature.endswith("^2")
+    feature = feature.removesuffix("^2")
+    word = _FEATURE_WORDS.get(feature, feature)
+    per = f"({word})²" if square else word
+    if param in ("alpha", "c"):  # (additive: jaxhyst.identify.conditions.ADDITIVE)
+        return f"{PARAMETER_UNITS.get(param, '1')} per {per}"
+    if feature == "T":
+        return f"1 per {per} (exponent)"
+    return f"1 (power of {word[3:]})" if not square else f"1 per {per} (exponent)"
+
+
 #: What drives a path: the field H, the flux density B or the magnetization M.
 DRIVERS = ("H", "B", "M")
 
