@@ -23,10 +23,12 @@ error is filtered first: the measurement noise beyond the band never reaches the
   the fall the model predicted, the step factor γ grows (×1.5, to 1) and the band f_c
   doubles (up to the Nyquist frequency, or half the band of the last undone step); by
   less than 1/4, γ halves. A step after which the error *rose* is undone (the next input
-  is built from the best one) and the band narrows: below half the lowest frequency at
-  which the measured error departs most from the model's prediction (an unmodelled mode
-  shows there), or to half with γ halved; the report says where the model is no longer
-  trusted.
+  is built from the best one): where the measured error departs most from the model's
+  prediction at twice the reference's fundamental or above (an unmodelled mode shows
+  there), the band narrows to half that frequency; where it departs most at the
+  fundamental itself (the step was too large for a model that is off), γ halves and the
+  band halves no lower than twice the fundamental; the report says where the model is
+  no longer trusted.
 - **Noise.** The measurement noise σ is estimated from repeated measurements of the same
   input (their scatter) or from the upper half of the error's spectrum (where a tracking
   error has little power); repeated measurements are averaged. Learning stops at the
@@ -34,7 +36,9 @@ error is filtered first: the measurement noise beyond the band never reaches the
 - **Delay.** The lag between the measured displacement and the model's prediction for
   the applied input is found by cross-correlation; a lag of whole samples is corrected
   (the record shifted back) and reported, or refused with the shift named
-  (``delay="refuse"``).
+  (``delay="refuse"``). Only a late measurement is an acquisition delay: one that leads
+  the prediction shows the plant's phase differing from the model's, and is reported,
+  not corrected.
 - **Convergence and stalls.** Learning stops when the model predicts no fall larger
   than the noise (within its band: what is left lies where it is not trusted), after
   three undone steps in a row, or with a band below the reference's fundamental, and
@@ -102,7 +106,9 @@ class LearningReport:
     def __str__(self) -> str:
         pred = "" if self.predicted is None else f", predicted next {self.predicted:.3e}"
         delay = (f", delay {self.delay:+d} samples corrected" if self.delay else
-                 f", lag {self.lag:+.2f} samples" if abs(self.lag) >= 0.25 else "")
+                 f", the plant leads the model by {-self.lag:.2f} samples (its phase: "
+                 "not an acquisition delay)" if self.lag <= -0.25 else
+                 f", lag {self.lag:+.2f} samples" if self.lag >= 0.25 else "")
         return (f"iteration {self.iteration}: measured error {self.error:.3e} (noise "
                 f"{self.noise:.2e}){delay}; {self.action}: {self.reason}; step "
                 f"{self.step:.2e}{pred}; factor {self.factor:.3g}, band {self.band:.4g} Hz")
@@ -224,7 +230,9 @@ class IterativeLearning(eqx.Module):
         periodic = self.reference.periodic
         mean = y.mean(axis=0) if y.ndim == 2 else y
         found = estimate_delay(mean, self.predict(state), periodic)
-        lag = int(np.round(found)) if abs(found) >= DELAY_THRESHOLD else 0
+        # (a measurement can only be late: one that leads the prediction shows the
+        # plant's phase differing from the model's, which learning absorbs)
+        lag = int(np.round(found)) if found >= DELAY_THRESHOLD else 0
         if lag and self.delay == "refuse":
             raise DelayError(f"the measured displacement lags the input by {lag} samples "
                              f"({lag * self.reference.dt:.3g} s): shift it back (or let "
@@ -254,6 +262,7 @@ class IterativeLearning(eqx.Module):
         factor, band, rejected, limit = state.factor, state.band, state.rejected, \
             state.band_limit
         nyquist = 0.5 / ref.dt
+        fundamental = 1.0 / (ref.n_samples * ref.dt)
         margin = 2.0 * noise / np.sqrt(ref.n_samples) + 1e-3 * (state.best_error or error)
         if state.best_error is None or error <= state.best_error + margin:
             action = "accepted"
@@ -276,12 +285,13 @@ class IterativeLearning(eqx.Module):
         else:
             action, rejected = "undone", rejected + 1
             failed = self._mispredicted(e, state.predicted_e)
-            if failed is not None and 0.5 * failed < 0.5 * band:
+            if failed is not None and failed >= 2.0 * fundamental and 0.5 * failed < band:
                 band = 0.5 * failed
                 where = (f"it mispredicted the plant most at {failed:.4g} Hz: the model "
                          f"trusted only below {band:.4g} Hz")
-            else:
-                factor, band = max(0.5 * factor, MIN_FACTOR), 0.5 * band
+            else:  # (mispredicted at the reference's own frequency: a step too large)
+                factor = max(0.5 * factor, MIN_FACTOR)
+                band = min(band, max(0.5 * band, 2.0 * fundamental))
                 where = f"steps halved, the model trusted only below {band:.4g} Hz"
             limit = band
             why = (f"the error rose from {state.best_error:.3e} to {error:.3e}: back to the "
@@ -289,7 +299,6 @@ class IterativeLearning(eqx.Module):
             best_z, best_error, best_e = state.best_z, state.best_error, state.best_e
         errors = (*state.errors, error)
         stop = None
-        fundamental = 1.0 / (ref.n_samples * ref.dt)
         if best_error <= NOISE_FLOOR * noise or best_error == 0:
             stop = f"at the noise floor (error {best_error:.3e}, noise {noise:.2e})"
         elif rejected >= MAX_REJECTED:

@@ -46,10 +46,10 @@ def estimate_delay(measured: np.ndarray, predicted: np.ndarray, periodic: bool) 
     return float(lags[i])
 
 
-#: A lag is taken for an acquisition delay (and corrected by whole samples) from this
-#: many samples on; smaller ones may be the model's own phase error (a plant 10 % off
-#: the model lags it by up to ~1.3 samples at 200 samples per period: benchmarks/
-#: RESULTS.md), which learning absorbs. The lag found is reported either way.
+#: A late measurement is taken for an acquisition delay (and corrected by whole samples)
+#: from this many samples on; smaller lags may be the model's own phase error (plants
+#: 10 % off the model differ from it by −1.4 … +0.9 samples at 200 samples per period:
+#: benchmarks/RESULTS.md), which learning absorbs. The lag found is reported either way.
 DELAY_THRESHOLD = 1.0
 
 
