@@ -21,8 +21,11 @@ run one after the other in this process, with the same table.
 **The table** (``<out>/results.csv``): one row per item — its id, data, loop, outcome,
 exit status, rms error, cost, seconds, worker, every parameter's value and 95 % interval,
 the leave-one-out's kept form and mean held-out error where it ran, and the reason of a
-failure. It is rewritten (atomically) after every item: an interrupted run loses no
-finished item, and a run over the same manifest skips the items already in it (resume).
+failure. Every finished item is appended at once to ``<out>/results.jsonl`` (one JSON
+line, flushed: an interrupted run loses no finished item) and the table is rewritten
+(atomically) from it at most every `TABLE_EVERY` seconds and at the end — so that the
+cost of recording stays flat for 1e5 items; a run over the same manifest skips the items
+already in either (resume).
 An item that raises, or whose worker is lost, is tried once more and then recorded as
 failed with its reason; the batch never stops for one item.
 """
@@ -47,6 +50,8 @@ COLUMNS = ("id", "data", "loop", "status", "outcome", "rms_error", "cost", "seco
            "worker", "kept_form", "held_out_rms", "error")
 #: An item is tried this many times more after an exception or a lost worker.
 RETRIES = 1
+#: The table is rewritten from the journal at most this often (seconds) during a run.
+TABLE_EVERY = 5.0
 
 
 class ManifestError(ValueError):
@@ -200,6 +205,29 @@ def read_table(path: str) -> list[dict]:
         return list(csv.DictReader(fh))
 
 
+def read_journal(path: str) -> list[dict]:
+    """The rows appended to a journal (``results.jsonl``); a last line cut off by an
+    interruption is left out."""
+    if not os.path.isfile(path):
+        return []
+    rows = []
+    with open(path, encoding="utf-8") as fh:
+        for line in fh:
+            try:
+                rows.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue
+    return rows
+
+
+def append_journal(path: str, row: dict) -> None:
+    """Append one row to the journal, flushed to disk."""
+    with open(path, "a", encoding="utf-8") as fh:
+        fh.write(json.dumps(row, default=str) + "\n")
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
 def write_table(path: str, rows: Sequence[dict]) -> None:
     """Write the rows (atomically): `COLUMNS`, then every other key in first-seen order."""
     keys = list(COLUMNS)
@@ -247,9 +275,11 @@ def fit_many(manifest, out: str, *, scheduler: str | None = None, workers: int |
     (a callable taking a line) hears of each item as it ends."""
     items = read_manifest(manifest)
     os.makedirs(out, exist_ok=True)
-    table = os.path.join(out, "results.csv")
-    rows = [r for r in read_table(table) if r.get("outcome") not in ("", None)]
-    done = {r["id"] for r in rows}
+    table, journal = os.path.join(out, "results.csv"), os.path.join(out, "results.jsonl")
+    known = {r["id"]: r for r in read_table(table) if r.get("outcome") not in ("", None)}
+    known.update({r["id"]: r for r in read_journal(journal)})  # (newer than the table)
+    rows = list(known.values())
+    done = set(known)
     todo = [it for it in items if it["id"] not in done]
     say = progress or (lambda line: None)
     remote = scheduler not in (None, "local", "serial")
@@ -257,22 +287,35 @@ def fit_many(manifest, out: str, *, scheduler: str | None = None, workers: int |
     say(f"{len(items)} items, {len(items) - len(todo)} already in {table}")
     if scheduler in (None, "local"):
         client = _client(scheduler, workers)
-    finished = 0
+    finished, written = 0, time.monotonic()
 
     def record(row):
-        nonlocal finished
+        nonlocal finished, written
         rows.append(row)
-        write_table(table, rows)
+        append_journal(journal, row)
+        if time.monotonic() - written >= TABLE_EVERY:
+            write_table(table, rows)
+            written = time.monotonic()
         finished += 1
         say(f"{finished}/{len(todo)}: {row['id']} {row.get('outcome')}"
             + (f" ({row['error']})" if row.get("error") else ""))
 
+    try:
+        _run(client, todo, out, record)
+    finally:
+        write_table(table, rows)
+    return rows
+
+
+def _run(client, todo, out, record) -> None:
+    """Run the items ``todo`` (in this process where ``client`` is None), each row to
+    ``record`` as it ends."""
     if client is None:
         for it in todo:
             if stop_requested():
                 break
             record(_guarded(it, out))
-        return rows
+        return
     from dask.distributed import as_completed
 
     try:
@@ -291,7 +334,7 @@ def fit_many(manifest, out: str, *, scheduler: str | None = None, workers: int |
         client.close()
         if cluster is not None:
             cluster.close()
-    return rows
 
 
-__all__ = ["ManifestError", "fit_many", "read_manifest", "read_table", "run_item"]
+__all__ = ["ManifestError", "fit_many", "read_journal", "read_manifest", "read_table",
+           "run_item"]

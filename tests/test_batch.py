@@ -58,6 +58,12 @@ def test_a_serial_batch_records_a_failure_and_a_second_run_skips_what_is_done(tm
                  "--scheduler", "serial"]) == 3
     assert "4 items, 4 already in" in capsys.readouterr().err
     assert _table(tmp_path / "s" / "results.csv") == s
+    # killed between two rewrites of the table: the journal has every finished item
+    (tmp_path / "s" / "results.csv").unlink()
+    assert main(["identify-many", str(manifest), "--out", str(tmp_path / "s"),
+                 "--scheduler", "serial"]) == 3
+    assert "4 items, 4 already in" in capsys.readouterr().err
+    assert _table(tmp_path / "s" / "results.csv") == s
 
 
 def test_a_local_cluster_gives_the_serial_table(tmp_path):
