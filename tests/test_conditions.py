@@ -212,6 +212,15 @@ def test_predict_reproduces_the_fit_and_leave_one_out_reports_each_loop(tmp_path
     assert summary["B_max_T"] == pytest.approx(np.max(loop1), rel=0.01)
     assert main(["simulate", "--model", str(law), "--field-amplitude", "12000"]) == 2
     assert "varies with the frequency; give --frequency" in capsys.readouterr().err
+    # a recorded drive: the law at its peak field and the frequency given
+    H1 = got["H_A_per_m"][got["loop"] == 1]
+    record = tmp_path / "drive.csv"
+    record.write_text("t [s],H [A/m]\n" + "".join(f"{1e-5 * i!r},{float(h)!r}\n"
+                                                   for i, h in enumerate(H1)))
+    assert main(["simulate", "--model", str(law), "--drive", str(record), "--frequency",
+                 "400", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["B_max_T"] == pytest.approx(np.max(loop1),
+                                                                          rel=0.01)
 
     # at another amplitude: the loops' fields scaled, the data not compared, a figure
     fig = tmp_path / "pred.svg"

@@ -326,3 +326,43 @@ def test_ctrl_c_twice_during_compilation_exits_at_once(tmp_path):
     assert rc == 130, err
     assert "interrupted" in err and "aborted" in err, err
     assert took < 5.0, took
+
+
+@pytest.mark.slow  # (a rate-dependent displacement fit and a compensation: minutes)
+def test_a_rate_dependent_fit_is_saved_predicted_and_compensated_from_the_command_line(
+        tmp_path, capsys):
+    """The chain of issue 46 from a fresh file: identify with losses → save → predict →
+    compensate with the saved model (its loss coefficients kept at every door)."""
+    csv = tmp_path / "run.csv"
+    assert main(["simulate", "--frequency", "1000", "--samples-per-period", "100",
+                 "--substeps", "4", "--eddy", "0.02", "--excess", "0.1", "--csv",
+                 str(csv)]) == 0
+    bounds, start = tmp_path / "b.json", tmp_path / "known.json"
+    bounds.write_text(json.dumps({"eddy": [0.0, 0.1], "excess": [0.0, 1.0]}))
+    start.write_text(json.dumps(jh.TABLE1_TRUE.to_dict()))
+    out, model = tmp_path / "r.json", tmp_path / "m.eqx"
+    rc = main(["identify", str(csv), "--output", "y", "--method", "lm", "--starts", "1",
+               "--max-steps", "60", "--substeps", "4", "--losses", "eddy,excess",
+               "--bounds", str(bounds),
+               "--params", str(start), "--fix", ",".join(jh.NAMES),  # (the losses free)
+               "--out", str(out), "--save-model", str(model), "--progress", "0"])
+    assert rc in (0, 4), capsys.readouterr()
+    fit = json.loads(out.read_text())
+    assert fit["params"]["eddy"]["value"] == pytest.approx(0.02, rel=1e-3)
+    saved = jh.load_model(model)
+    assert saved.losses is not None and float(saved.losses.eddy) == pytest.approx(0.02,
+                                                                                 rel=1e-3)
+    # --start from that result: its loss coefficients start at the centre of their box
+    assert main(["identify", str(csv), "--output", "y", "--method", "lm", "--max-steps",
+                 "60", "--substeps", "4", "--losses", "eddy,excess", "--bounds",
+                 str(bounds), "--params", str(start), "--fix", ",".join(jh.NAMES),
+                 "--start", str(out), "--progress", "0"]) in (0, 4)
+    capsys.readouterr()
+    assert main(["predict", str(out), "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["loops"]
+    assert rows[0]["rms"] < 1e-3 * rows[0]["data_scale"]
+    comp = tmp_path / "comp.csv"
+    assert main(["compensate", "--model", str(model), "--current-limit", "2.5", "--csv",
+                 str(comp), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["error"] < 1e-4 and summary["error"] < summary["uncompensated_error"] / 100

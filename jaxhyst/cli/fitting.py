@@ -67,6 +67,9 @@ def _start_params(args, p, problem):
     import jax.numpy as jnp
 
     from jaxhyst.identify import JointProblem
+    from jaxhyst.model.paths import split_parameters
+
+    p, losses, _ = split_parameters(p)  # (a form's own parameters: from the box)
 
     if isinstance(problem, JointProblem):  # per-loop leaves
         L = problem.n_loops
@@ -75,7 +78,23 @@ def _start_params(args, p, problem):
     elif p.to_array().ndim != 1:
         raise CLIError(f"--start {args.start}: a joint (per-loop) result cannot start a "
                        "single-loop fit.")
-    return p
+    return _with_the_rest(p, losses, problem)
+
+
+def _with_the_rest(p, losses, problem):
+    """The start ``p`` (`Parameters`, and ``losses`` where the start file has them) as
+    the problem's whole parameter pytree: loss coefficients it does not give and the
+    form's own parameters at the centre of their box."""
+    import numpy as np
+
+    from jaxhyst.model.losses import Losses
+
+    centre = problem.space.params_from_u(np.full(problem.space.n_free, 0.5))
+    if not isinstance(centre, tuple):
+        return p
+    rest = [losses if isinstance(m, Losses) and losses is not None
+            and np.ndim(m.eddy) == np.ndim(losses.eddy) else m for m in centre[1:]]
+    return (p, *rest)
 
 
 def _report(args, quiet: bool):

@@ -138,11 +138,15 @@ def _method(args, problem) -> str:
 
 def _read_start(args):
     """The parameters of an earlier result (--start), or None."""
-    from jaxhyst.io import parameters_from_json, read_json
+    import jaxhyst as jh
+    from jaxhyst.io import read_json
+
+    from .problems import model_parameters_from_json
 
     if not args.start:
-        return None
-    return parameters_from_json(read_json(args.start), f"parameters in --start {args.start}")
+        return None  # (a form's own parameters in the file: not used, see _start_params)
+    return model_parameters_from_json(read_json(args.start), jh.EnergyBasedJA(),
+                                      f"parameters in --start {args.start}")
 
 
 def check_options(args) -> dict:

@@ -85,7 +85,8 @@ def _check_drive_options(args) -> None:
     filled in; the drive's size is checked before anything is allocated."""
     sine = [o for o in ("frequency", "amplitude", "offset", "field_amplitude",
                         "field_offset", "periods", "samples_per_period")
-            if getattr(args, o) is not None]
+            if getattr(args, o) is not None
+            and not (o == "frequency" and args.model)]  # (a saved law's condition)
     flag = lambda o: "--" + o.replace("_", "-")  # noqa: E731
     if args.drive and sine:
         raise CLIError(f"--drive reads the drive from {args.drive}; "
@@ -177,7 +178,6 @@ def _losses(args):
 def _model(args):
     """(params, actuator or None, form, substeps, losses) of the run: from --model (its law
     at the run's conditions) or from the options."""
-
     if not args.model:
         if args.temperature is not None:
             raise CLIError("--temperature goes with --model (a saved condition law).")
@@ -192,8 +192,20 @@ def _model(args):
     from .models import model_at, read_model
 
     model = read_model(args.model)
+    if args.drive and args.given_frequency is not None and (
+            model.law is None or "log_f" not in model.law.features):
+        raise CLIError(f"--frequency with --drive gives the frequency of a saved law; the "
+                       f"model in {args.model} does not vary with it (the record sets the "
+                       "drive's timing): leave it out.")
     flux = args.flux_amplitude is not None
     amplitude = args.flux_amplitude if flux else args.field_amplitude
+    if amplitude is None and args.drive and model.law is not None:  # (the record's peak)
+        import numpy as np
+
+        from jaxhyst.io import read_loops
+
+        loop = read_loops(args.drive, args.columns)[0]
+        amplitude = float(np.max(np.abs(loop_field(loop, model.actuator, args.drive))))
     model = model_at(args, model, args.model, frequency=args.given_frequency,
                      temperature=args.temperature,
                      amplitude=None if amplitude is None else abs(amplitude),
