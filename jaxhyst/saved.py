@@ -1,14 +1,17 @@
-"""Models as data: an identified model (`Model`: parameters, Jiles–Atherton form,
-actuator, RK4 substeps) saved to and loaded from one file, in the ecosystem's form.
+"""Models as data: an identified model (`Model`: parameters, form, actuator, RK4
+substeps, losses, a condition law) saved to and loaded from one file, in the
+ecosystem's form.
 
 **The file** is one line of JSON — the header: format and version, the form (its class
 name), the substeps, the parameters' units and leaf shape, the actuator's name and
-whether it has turns per metre, the versions of jaxhyst, JAX and Equinox that wrote it,
-and whatever the caller adds (``meta``) — followed by the model's arrays as
-``equinox.tree_serialise_leaves`` writes them. The header says what the arrays are, so
-`load_model` builds the matching template and ``equinox.tree_deserialise_leaves`` fills
-it; nothing is unpickled. Written through the package's file writer (atomically for a
-regular file).
+whether it has turns per metre, the condition law (its features, references, fitted
+range and coefficient names), the versions of jaxhyst, JAX and Equinox that wrote it,
+and whatever the caller adds (``meta``; ``identify --save-model`` adds the data file, its
+SHA-256, the outcome, the rms error and the identifiability report) — followed by the
+model's arrays as ``equinox.tree_serialise_leaves`` writes them. The header says what
+the arrays are, so `load_model` builds the matching template and
+``equinox.tree_deserialise_leaves`` fills it; nothing is unpickled. Written through the
+package's file writer (atomically for a regular file).
 """
 
 from __future__ import annotations

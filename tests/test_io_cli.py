@@ -293,6 +293,13 @@ def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
     assert isinstance(model.variant, jh.ClassicJA)
     assert float(model.params.k) == res["params"]["k"]["value"]
     assert model.actuator.name == NO_ACTUATOR.name  # (a material's B loop: no actuator)
+    import hashlib
+
+    from jaxhyst.saved import read_header
+
+    meta = read_header(tmp_path / "m.eqx")["meta"]  # what it was fitted to, and the report
+    assert meta["data_sha256"] == hashlib.sha256(f.read_bytes()).hexdigest()
+    assert meta["identifiability"]["rank"] == res["identifiability"]["rank"]
     assert json.loads(capsys.readouterr().out)["outcome"] == "max_steps_reached"
     helps = build_parser()._subparsers._group_actions[0].choices["identify"].format_help()
     assert "3 the fit stopped" in " ".join(helps.split())

@@ -195,7 +195,7 @@ def check_options(args) -> dict:
 def run(args) -> int:
     import jaxhyst as jh
     from jaxhyst._interrupt import stop_requested
-    from jaxhyst.io import bounds_to_json, read_loops, write_json
+    from jaxhyst.io import bounds_to_json, json_safe, read_loops, write_json
 
     spec = check_options(args)
     given = bounds_arg(args.bounds)
@@ -270,8 +270,9 @@ def run(args) -> int:
 
             model = eqx_replace_actuator(model, NO_ACTUATOR)
         jh.save_model(args.save_model, model, data=spec["data"],
-                      outcome=result.result, rms_error=result.rms_error,
-                      output=result.output)
+                      data_sha256=_sha256(spec["data"]), outcome=result.result,
+                      rms_error=result.rms_error, output=result.output,
+                      identifiability=json_safe(d.get("identifiability")))
     wrote = [f for f in (args.out, args.save_model, *figures) if f]
     text = str(result) + (held_out_text(held) if held else "") + \
         "".join(f"\n  wrote {f}" for f in wrote)
@@ -394,3 +395,14 @@ def eqx_replace_actuator(model, actuator):
     import equinox as eqx
 
     return eqx.tree_at(lambda m: m.actuator, model, actuator)
+
+
+def _sha256(path: str) -> str:
+    """The SHA-256 of a data file (the saved model names what it was fitted to)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
