@@ -222,6 +222,14 @@ def test_predict_reproduces_the_fit_and_leave_one_out_reports_each_loop(tmp_path
     assert json.loads(capsys.readouterr().out)["B_max_T"] == pytest.approx(np.max(loop1),
                                                                           rel=0.01)
 
+    # predict from the saved model: each loop at its file's frequency, as the result does
+    assert main(["predict", str(law), str(data), "--json"]) == 0
+    from_model = json.loads(capsys.readouterr().out)["loops"]
+    for mine, theirs in zip(from_model, rows, strict=True):
+        assert mine["rms"] == pytest.approx(theirs["rms"], rel=1e-6)
+    assert main(["predict", str(law)]) == 2
+    assert "give the data file" in capsys.readouterr().err
+
     # at another amplitude: the loops' fields scaled, the data not compared, a figure
     fig = tmp_path / "pred.svg"
     assert main(["predict", str(out), "--amplitude", "1234", "--png", str(fig),

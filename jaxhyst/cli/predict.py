@@ -19,7 +19,8 @@ def add_parser(sub) -> None:
         "each loop's frequency, temperature (the file's columns, or --frequency and "
         "--temperature) and peak field; shared parameters are used as fitted. Writes the "
         "prediction (and the error where the file has data).")
-    parser.add_argument("result", help="result JSON from identify --out")
+    parser.add_argument("result", help="result JSON from identify --out, or a saved model "
+                        "(.eqx, identify --save-model: then give the data file)")
     parser.add_argument("data", nargs="?", help="data file of the loops to predict "
                         "(columns as for identify; default: the fitted data)")
     parser.add_argument("--loop", type=COUNT, action="append",
@@ -51,6 +52,10 @@ def run(args) -> int:
 
     from .predictions import error_summary, predict_loops, records_of
 
+    if args.result.endswith(".eqx"):  # a saved model (identify --save-model)
+        from .predict_model import run_model
+
+        return run_model(args)
     check_outputs(args)
     saved, spec, fitted, params = load_result(args.result)
     if isinstance(records_of(fitted), jh.FluxProblem):

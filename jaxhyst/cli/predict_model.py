@@ -1,0 +1,80 @@
+"""``jaxhyst predict MODEL.eqx DATA``: a saved model (``identify --save-model``) predicts
+the loops of a data file, each driven by its own field — a condition law evaluated at
+each loop's frequency and temperature (the file's columns, or ``--frequency`` and
+``--temperature``) and peak field — with its error against the loop's signal."""
+
+from __future__ import annotations
+
+from .spec import CLIError, check_outputs, loop_drive, loop_field, loop_signal, print_result
+
+
+def run_model(args) -> int:
+    """``predict`` with a model file (see the module docstring)."""
+    import os
+
+    import numpy as np
+
+    from jaxhyst.identify.outputs import output_kind
+    from jaxhyst.io import SIGNAL_OUTPUTS, read_loops, write_columns_csv
+
+    from .models import model_at, read_model
+    from .predictions import error_summary
+
+    check_outputs(args)
+    if not args.data:
+        raise CLIError(f"{args.result} is a saved model: give the data file whose loops it "
+                       "predicts (predict MODEL.eqx DATA).")
+    if args.amplitude is not None:
+        raise CLIError("--amplitude scales a result's fitted loops; with a saved model give "
+                       "the loops to predict in the data file.")
+    saved = read_model(args.result)
+    law = saved.law.features if saved.law is not None else ()
+    for name, feature in (("frequency", "log_f"), ("temperature", "T")):
+        if vars(args)[name] is not None and feature not in law:
+            raise CLIError(f"--{name}: the model in {args.result} does not vary with the "
+                           f"{name}; it would have no effect.")
+    loops = read_loops(args.data, None)
+    if args.loop:
+        ids = [lp.index for lp in loops]
+        missing = [i for i in args.loop if i not in ids]
+        if missing:
+            raise CLIError(f"--loop {missing}: {args.data} holds loops {ids}.")
+        loops = [lp for lp in loops if lp.index in args.loop]
+    spec = {"data": args.data, "run_in_periods": 1}
+    rows, curves, columns = [], [], {k: [] for k in ("loop", "H_A_per_m", "predicted",
+                                                    "data", "error")}
+    for lp in loops:
+        out = loop_signal(spec, lp, None)
+        kind = output_kind(SIGNAL_OUTPUTS[out])
+        H = np.asarray(loop_field(lp, saved.actuator, args.data), dtype=np.float64)
+        f = args.frequency if args.frequency is not None else lp.conditions.get("frequency")
+        T = args.temperature if args.temperature is not None else \
+            lp.conditions.get("temperature")
+        model = model_at(args, saved, args.result,
+                         frequency=f if "log_f" in law else None,
+                         temperature=T if "T" in law else None,
+                         amplitude=float(np.max(np.abs(H))))
+        sim = model.simulate(loop_drive(spec, lp, out, model.actuator))
+        pred = np.asarray(kind.of(sim))[sim.run_in:]
+        data = np.asarray(lp.signals[out], dtype=np.float64)
+        row = {"loop": lp.index, "output": kind.name, "samples": int(pred.shape[0]),
+               **error_summary(pred, data)}
+        rows.append(row)
+        curves.append((f"loop {lp.index}", H, pred, data))
+        for k, v in (("loop", np.full(pred.shape, lp.index, float)), ("H_A_per_m", H),
+                     ("predicted", pred), ("data", data), ("error", pred - data)):
+            columns[k].append(v)
+    if args.png:
+        from jaxhyst.plots import plot_predictions
+
+        plot_predictions(curves, rows[0]["output"], args.png,
+                         title=f"predicted by {os.path.basename(args.result)}")
+    if args.out:
+        write_columns_csv(args.out, {k: np.concatenate(v) for k, v in columns.items()})
+    text = [f"prediction of {len(rows)} loop(s) of {os.path.basename(args.data)} from the "
+            f"saved model {os.path.basename(args.result)}"]
+    text += [f"  loop {r['loop']}: rms error {r['rms']:.4g} (max {r['max_abs']:.4g}, "
+             f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|)" for r in rows]
+    text += [f"  wrote {f}" for f in (args.out, args.png) if f]
+    print_result(args, {"loops": rows, "out": args.out, "png": args.png}, "\n".join(text))
+    return 0
