@@ -37,7 +37,7 @@ from .model.jiles_atherton import (
     VenkataramanJA,
 )
 from .model.losses import Losses
-from .model.paths import model_values, own_parameters
+from .model.paths import model_parameters, model_values, own_parameters, split_parameters
 from .model.play import AbstractPlayForm, PlayJA, PreisachJA
 from .model.simulate import Simulation, simulate, simulate_unchecked
 from .names import DEFAULT_SUBSTEPS
@@ -97,15 +97,10 @@ class Model(eqx.Module):
                                    for k, v in given.items()})
         self.law.warn_outside(conditions)
         values = self.law.evaluate(self.coefficients, self.law.feature_values(conditions))
-        params = Parameters(**{n: jnp.asarray(values[n][0]) for n in NAMES})
-        losses = (Losses(jnp.asarray(values["eddy"][0]), jnp.asarray(values["excess"][0]))
-                  if self.losses is not None else None)
-        variant = self.variant
-        own = list(own_parameters(variant))
-        if own:
-            variant = eqx.tree_at(lambda f: [getattr(f, n) for n in own], variant,
-                                  [jnp.asarray(values[n][0]) for n in own])
-        return Model(params, self.actuator, variant, self.substeps, losses)
+        params, losses, form = split_parameters(model_parameters(
+            {n: v[0] for n, v in values.items()}, self.variant, self.losses is not None))
+        return Model(params, self.actuator, self.variant if form is None else form,
+                     self.substeps, losses)
 
     def simulate(self, drive: Drive) -> Simulation:
         """Every signal for ``drive`` (`jaxhyst.simulate`; one parameter set)."""

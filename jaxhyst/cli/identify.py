@@ -266,9 +266,11 @@ def run(args) -> int:
         records = records_of(problem)
         if all(o in MAGNETIC_OUTPUT_NAMES
                for o in getattr(records, "outputs", None) or (records.output,)):
+            import equinox as eqx
+
             from jaxhyst.identify.joint import NO_ACTUATOR  # (a material: no actuator)
 
-            model = eqx_replace_actuator(model, NO_ACTUATOR)
+            model = eqx.tree_at(lambda m: m.actuator, model, NO_ACTUATOR)
         jh.save_model(args.save_model, model, data=spec["data"],
                       data_sha256=_sha256(spec["data"]), outcome=result.result,
                       rms_error=result.rms_error, output=result.output,
@@ -388,13 +390,6 @@ def _exit_status(result) -> int:
     box = [n for n, (_, bound) in result.at_bound.items()
            if not at_physical_limit(n, bound)]  # (a physical limit is the model's, fine)
     return 4 if box else 0
-
-
-def eqx_replace_actuator(model, actuator):
-    """``model`` with another actuator (a material's fit keeps none)."""
-    import equinox as eqx
-
-    return eqx.tree_at(lambda m: m.actuator, model, actuator)
 
 
 def _sha256(path: str) -> str:

@@ -63,13 +63,7 @@ def run(args) -> int:
                        "H-driven fits; simulate its saved model (identify --save-model) with "
                        "'jaxhyst simulate --model FILE --flux-amplitude B --frequency F'.")
     source = args.data or spec["data"]
-    loops = read_loops(source, spec.get("columns"))
-    if args.loop:
-        ids = [lp.index for lp in loops]
-        missing = [i for i in args.loop if i not in ids]
-        if missing:
-            raise CLIError(f"--loop {missing}: {source} holds loops {ids}.")
-        loops = [lp for lp in loops if lp.index in args.loop]
+    loops = select_loops(read_loops(source, spec.get("columns")), args.loop, source)
     overrides = {"frequency": args.frequency, "temperature": args.temperature}
     varies = fitted.form.features if isinstance(fitted, jh.ConditionProblem) else ()
     for name, feature in (("frequency", "log_f"), ("temperature", "T"),
@@ -142,6 +136,18 @@ def run(args) -> int:
     print_result(args, {"loops": rows, "out": args.out, "png": args.png}, "\n".join(text))
     return 0
 
+
+
+def select_loops(loops, wanted, source) -> list:
+    """The loops of ``loops`` (of the file ``source``) whose index is in ``wanted``
+    (``--loop``; all where it is not given); one line naming a loop the file lacks."""
+    if not wanted:
+        return loops
+    ids = [lp.index for lp in loops]
+    missing = [i for i in wanted if i not in ids]
+    if missing:
+        raise CLIError(f"--loop {missing}: {source} holds loops {ids}.")
+    return [lp for lp in loops if lp.index in wanted]
 
 
 def _elsewhere(loops, overrides, amplitude) -> dict:

@@ -18,6 +18,7 @@ def run_model(args) -> int:
     from jaxhyst.io import SIGNAL_OUTPUTS, read_loops, write_columns_csv
 
     from .models import model_at, read_model
+    from .predict import select_loops
     from .predictions import error_summary
 
     check_outputs(args)
@@ -33,13 +34,7 @@ def run_model(args) -> int:
         if vars(args)[name] is not None and feature not in law:
             raise CLIError(f"--{name}: the model in {args.result} does not vary with the "
                            f"{name}; it would have no effect.")
-    loops = read_loops(args.data, None)
-    if args.loop:
-        ids = [lp.index for lp in loops]
-        missing = [i for i in args.loop if i not in ids]
-        if missing:
-            raise CLIError(f"--loop {missing}: {args.data} holds loops {ids}.")
-        loops = [lp for lp in loops if lp.index in args.loop]
+    loops = select_loops(read_loops(args.data, None), args.loop, args.data)
     spec = {"data": args.data, "run_in_periods": 1}
     rows, curves, columns = [], [], {k: [] for k in ("loop", "H_A_per_m", "predicted",
                                                     "data", "error")}

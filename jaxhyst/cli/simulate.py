@@ -120,12 +120,12 @@ def _check_drive_options(args) -> None:
                        f"{samples * 100 / 1e9:.2g} GB of signals); at most {MAX_SAMPLES:.0e}.")
 
 
-def _drive_from_args(args, actuator):
+def _drive_from_args(args, actuator, loop):
+    """The drive and its description: the --drive record ``loop`` (else None), or a
+    sinusoid of the options."""
     import jaxhyst as jh
-    from jaxhyst.io import read_loops
 
-    if args.drive:
-        loop = read_loops(args.drive, args.columns)[0]
+    if loop is not None:
         periods = 1 if args.run_in_periods is None else args.run_in_periods
         return (jh.drive_from_record(loop.t, loop_field(loop, actuator, args.drive),
                                      run_in_periods=periods), f"drive from {args.drive}")
@@ -175,9 +175,10 @@ def _losses(args):
     return jh.Losses(eddy=args.eddy or 0.0, excess=args.excess or 0.0)
 
 
-def _model(args):
+def _model(args, record):
     """(params, actuator or None, form, substeps, losses) of the run: from --model (its law
-    at the run's conditions) or from the options."""
+    at the run's conditions: the --drive ``record``'s peak field for an amplitude) or from
+    the options."""
     if not args.model:
         if args.temperature is not None:
             raise CLIError("--temperature goes with --model (a saved condition law).")
@@ -202,10 +203,8 @@ def _model(args):
     if amplitude is None and args.drive and model.law is not None:  # (the record's peak)
         import numpy as np
 
-        from jaxhyst.io import read_loops
-
-        loop = read_loops(args.drive, args.columns)[0]
-        amplitude = float(np.max(np.abs(loop_field(loop, model.actuator, args.drive))))
+        H = loop_field(record, model.actuator, args.drive)
+        amplitude = float(np.max(np.abs(H)))
     model = model_at(args, model, args.model, frequency=args.given_frequency,
                      temperature=args.temperature,
                      amplitude=None if amplitude is None else abs(amplitude),
@@ -257,16 +256,17 @@ def run(args) -> int:
     import numpy as np
 
     import jaxhyst as jh
-    from jaxhyst.io import write_simulation_csv
+    from jaxhyst.io import read_loops, write_simulation_csv
 
     check_outputs(args)
     args.given_frequency = args.frequency  # (before the defaults: a law needs it given)
     _check_drive_options(args)
-    params, actuator, variant, substeps, losses = _model(args)
+    record = read_loops(args.drive, args.columns)[0] if args.drive else None
+    params, actuator, variant, substeps, losses = _model(args, record)
     if args.flux_amplitude is not None:
         return _run_flux(args, params, variant, substeps, losses)
     actuator = actuator or actuator_arg(args.actuator or "actuator1")
-    drive, what = _drive_from_args(args, actuator)
+    drive, what = _drive_from_args(args, actuator, record)
     sim = jh.simulate(params, actuator, drive, variant=variant, substeps=substeps,
                       losses=losses)
     if str(actuator.name).startswith("none"):

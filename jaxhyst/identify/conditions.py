@@ -41,10 +41,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..model.losses import LOSS_NAMES, Losses
-from ..model.paths import OWN_NAMES, own_parameters
+from ..model.losses import LOSS_NAMES
+from ..model.paths import OWN_NAMES, model_parameters, own_parameters
 from ..names import CONDITION_FEATURES
-from ..params import NAMES, Bounds, Parameters
+from ..params import NAMES, Bounds
 from .flux import FluxProblem
 from .problem import AbstractProblem, ResidualGroup
 from .space import ParameterSpace
@@ -344,15 +344,8 @@ class ConditionProblem(AbstractProblem):
 
     def parameters_at(self, coefficients, X):
         """The records problem's parameter pytree (leaves (L,)) at features X (L, F)."""
-        values = self.form.evaluate(coefficients, X)
-        members = [Parameters(**{n: values[n] for n in NAMES})]
-        if self.losses:
-            members.append(Losses(values["eddy"], values["excess"]))
-        own = list(own_parameters(self.records.variant))
-        if own and own[0] in values:
-            members.append(eqx.tree_at(lambda f: [getattr(f, n) for n in own],
-                                       self.records.variant, [values[n] for n in own]))
-        return members[0] if len(members) == 1 else tuple(members)
+        return model_parameters(self.form.evaluate(coefficients, X), self.records.variant,
+                                self.losses)
 
     def per_record(self, coefficients):
         """The parameters of every fitted record."""

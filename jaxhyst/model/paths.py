@@ -11,9 +11,10 @@ its own time-loop form (like `jaxhyst.model.play.AbstractPlayForm`: ``path_form`
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax.numpy as jnp
 
-from ..params import UNITS, Parameters
+from ..params import NAMES, UNITS, Parameters
 from .drivers import FluxDriven, MagnetizationDriven
 from .dynamic import RateDependentPath
 from .jiles_atherton import AbstractJAVariant
@@ -110,6 +111,19 @@ def split_parameters(params):
     if found["p"] is None:
         raise TypeError("a tuple of model parameters must hold jaxhyst.Parameters.")
     return found["p"], found["losses"], found["form"]
+
+
+def model_parameters(values: dict, form, losses: bool):
+    """A model's parameter pytree from a law's values (`ConditionModel.evaluate`):
+    `Parameters`, `Losses` where ``losses``, ``form`` with its own parameters set."""
+    members = [Parameters(**{n: values[n] for n in NAMES})]
+    if losses:
+        members.append(Losses(values["eddy"], values["excess"]))
+    own = list(own_parameters(form))
+    if own and own[0] in values:
+        members.append(eqx.tree_at(lambda f: [getattr(f, n) for n in own], form,
+                                   [values[n] for n in own]))
+    return members[0] if len(members) == 1 else tuple(members)
 
 
 def hysteresis_path(form, p, t, drive, *, substeps: int, losses=None, driver: str = "H"):
