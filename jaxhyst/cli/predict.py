@@ -7,7 +7,7 @@ import os
 
 from .options import COUNT, FINITE, POSITIVE
 from .problems import load_result
-from .spec import CLIError, check_outputs, loop_field, print_result, warn
+from .spec import CLIError, check_outputs, loop_field, print_result, select_loops, warn
 
 
 def add_parser(sub) -> None:
@@ -136,18 +136,6 @@ def run(args) -> int:
     print_result(args, {"loops": rows, "out": args.out, "png": args.png}, "\n".join(text))
     return 0
 
-
-
-def select_loops(loops, wanted, source) -> list:
-    """The loops of ``loops`` (of the file ``source``) whose index is in ``wanted``
-    (``--loop``; all where it is not given); one line naming a loop the file lacks."""
-    if not wanted:
-        return loops
-    ids = [lp.index for lp in loops]
-    missing = [i for i in wanted if i not in ids]
-    if missing:
-        raise CLIError(f"--loop {missing}: {source} holds loops {ids}.")
-    return [lp for lp in loops if lp.index in wanted]
 
 
 def _elsewhere(loops, overrides, amplitude) -> dict:

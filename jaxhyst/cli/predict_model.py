@@ -5,7 +5,15 @@ each loop's frequency and temperature (the file's columns, or ``--frequency`` an
 
 from __future__ import annotations
 
-from .spec import CLIError, check_outputs, loop_drive, loop_field, loop_signal, print_result
+from .spec import (
+    CLIError,
+    check_outputs,
+    loop_drive,
+    loop_field,
+    loop_signal,
+    print_result,
+    select_loops,
+)
 
 
 def run_model(args) -> int:
@@ -18,7 +26,6 @@ def run_model(args) -> int:
     from jaxhyst.io import SIGNAL_OUTPUTS, read_loops, write_columns_csv
 
     from .models import model_at, read_model
-    from .predict import select_loops
     from .predictions import error_summary
 
     check_outputs(args)

@@ -229,6 +229,18 @@ def loop_drive(spec, loop, out, actuator, source=None):
     return jh.drive_from_record(loop.t, H, run_in_periods=spec.get("run_in_periods", 1))
 
 
+def select_loops(loops, wanted, source) -> list:
+    """The loops of ``loops`` (of the file ``source``) whose index is in ``wanted``
+    (``--loop``; all where it is not given); one line naming a loop the file lacks."""
+    if not wanted:
+        return loops
+    ids = [lp.index for lp in loops]
+    missing = [i for i in wanted if i not in ids]
+    if missing:
+        raise CLIError(f"--loop {missing}: {source} holds loops {ids}.")
+    return [lp for lp in loops if lp.index in wanted]
+
+
 def float_list(text: str, option: str) -> list[float]:
     """The comma-separated numbers of ``option``'s value ``text`` (one line if not)."""
     import math
