@@ -102,10 +102,9 @@ def read_manifest(manifest, root: str | None = None) -> list[dict]:
     if not rows:
         raise ManifestError(f"{where}: no items (a CSV with a 'data' column, or TOML "
                             "[[item]] tables).")
-    from .cli.identify import check_options
-    from .cli.parser import build_parser
+    from .cli.identify import check_options, identify_parser
 
-    parser = build_parser()
+    parser = identify_parser()
     items, seen = [], set()
     for k, row in enumerate(rows, start=1):
         row = {str(a).strip(): b for a, b in dict(row).items() if a is not None}
@@ -144,7 +143,7 @@ def read_manifest(manifest, root: str | None = None) -> list[dict]:
 def run_item(item: dict, out: str) -> dict:
     """One item, as ``jaxhyst identify`` runs it (in this process): its table row."""
     from . import enable_compilation_cache
-    from .cli.parser import build_parser
+    from .cli.identify import identify_parser
 
     enable_compilation_cache()  # (every worker: a program compiles once per machine)
     os.makedirs(os.path.join(out, "items"), exist_ok=True)
@@ -159,7 +158,7 @@ def run_item(item: dict, out: str) -> dict:
     t0 = time.perf_counter()
     sink = io.StringIO()
     with redirect_stdout(sink), redirect_stderr(sink):
-        args = build_parser().parse_args(argv)
+        args = identify_parser().parse_args(argv)
         status = args.func(args)
     row["seconds"] = round(time.perf_counter() - t0, 3)
     row["status"] = status

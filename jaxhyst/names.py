@@ -29,6 +29,6 @@ DEFAULT_SUBSTEPS = 2
 MAGNETIC_OUTPUT_NAMES = ("magnetization", "flux_density")
 
 #: Features of a record's condition that parameters may vary with: name → (the condition
-#: it comes from, that condition's unit) (`jaxhyst.identify.conditions.FEATURES`).
+#: it comes from, that condition's unit) (`jaxhyst.model.laws.FEATURES`).
 CONDITION_FEATURES = {"log_f": ("frequency", "Hz"), "T": ("temperature", "°C"),
                       "log_amplitude": ("amplitude", "A/m or T")}

@@ -36,6 +36,7 @@ from .model.jiles_atherton import (
     PopJA,
     VenkataramanJA,
 )
+from .model.laws import ConditionModel, Conditions
 from .model.losses import Losses
 from .model.paths import model_parameters, model_values, own_parameters, split_parameters
 from .model.play import AbstractPlayForm, PlayJA, PreisachJA
@@ -86,8 +87,6 @@ class Model(eqx.Module):
         condition law: one parameter set (leaves of shape ()) and no law. A condition
         outside the fitted range warns (`jaxhyst.ConditionWarning`); one the law needs
         and not given is a one-line ``ValueError``."""
-        from .identify.conditions import Conditions
-
         if self.law is None:
             raise ValueError("this model has no condition law (it was not fitted with "
                              "identify --vary / a ConditionProblem): it has no condition "
@@ -194,8 +193,6 @@ def _law_of(header: dict):
     law = header.get("law")
     if not law:
         return None, None
-    from .identify.conditions import ConditionModel
-
     model = ConditionModel(law["varying"], law["degree"], law["reference"],
                            {f: tuple(r) for f, r in law["fitted_range"].items()},
                            law.get("units", {}))

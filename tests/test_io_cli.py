@@ -301,6 +301,17 @@ def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
     assert meta["data_sha256"] == hashlib.sha256(f.read_bytes()).hexdigest()
     assert meta["identifiability"]["rank"] == res["identifiability"]["rank"]
     assert json.loads(capsys.readouterr().out)["outcome"] == "max_steps_reached"
+    # report reads the model file as it reads the result (the problem rebuilt from its
+    # header, the data checked against the SHA-256 it was fitted to)
+    reports = []
+    for fitted in (out, tmp_path / "m.eqx"):
+        assert main(["report", str(fitted), "--json"]) == 0
+        reports.append(json.loads(capsys.readouterr().out)["identifiability"])
+    assert reports[1]["singular_values"] == pytest.approx(reports[0]["singular_values"],
+                                                          rel=1e-9)
+    f.write_text(f.read_text() + "0.0,0.0\n")
+    assert main(["report", str(tmp_path / "m.eqx")]) == 2
+    assert "changed since" in capsys.readouterr().err
     helps = build_parser()._subparsers._group_actions[0].choices["identify"].format_help()
     assert "3 the fit stopped" in " ".join(helps.split())
 

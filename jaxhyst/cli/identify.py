@@ -17,7 +17,17 @@ from .heldout import (
     held_out_text,
     leave_one_out,
 )
-from .options import COUNT, EXIT_HELP, HYBRID, LOCAL, POSITIVE_INT, UNITS_HELP, VARIANTS
+from .models import file_sha256
+from .options import (
+    COUNT,
+    EXIT_HELP,
+    HYBRID,
+    LOCAL,
+    POSITIVE_INT,
+    UNITS_HELP,
+    VARIANTS,
+    Parser,
+)
 from .predictions import joint_view, records_of
 from .problems import DEFAULT_CELLS, LOSS_NAMES, build_problem, resolve_bounds
 from .spec import (
@@ -31,6 +41,14 @@ from .spec import (
     print_result,
     warn,
 )
+
+
+def identify_parser():
+    """A ``jaxhyst`` parser that knows only this command (``jaxhyst.batch`` reads each
+    manifest row's options with it, as the command line would)."""
+    parser = Parser(prog="jaxhyst")
+    add_parser(parser.add_subparsers(dest="command", required=True))
+    return parser
 
 
 def add_parser(sub) -> None:
@@ -272,9 +290,10 @@ def run(args) -> int:
 
             model = eqx.tree_at(lambda m: m.actuator, model, NO_ACTUATOR)
         jh.save_model(args.save_model, model, data=spec["data"],
-                      data_sha256=_sha256(spec["data"]), outcome=result.result,
+                      data_sha256=file_sha256(spec["data"]), outcome=result.result,
                       rms_error=result.rms_error, output=result.output,
-                      identifiability=json_safe(d.get("identifiability")))
+                      identifiability=json_safe(d.get("identifiability")),
+                      problem={**spec, "data": _portable_path(spec["data"], args.save_model)})
     wrote = [f for f in (args.out, args.save_model, *figures) if f]
     text = str(result) + (held_out_text(held) if held else "") + \
         "".join(f"\n  wrote {f}" for f in wrote)
@@ -391,13 +410,3 @@ def _exit_status(result) -> int:
            if not at_physical_limit(n, bound)]  # (a physical limit is the model's, fine)
     return 4 if box else 0
 
-
-def _sha256(path: str) -> str:
-    """The SHA-256 of a data file (the saved model names what it was fitted to)."""
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()

@@ -21,6 +21,69 @@ def read_model(path: str):
         raise CLIError(f"--model {path}: no such file.") from None
 
 
+def file_sha256(path: str) -> str:
+    """The SHA-256 of a data file (a saved model names what it was fitted to)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def is_model_file(path: str) -> bool:
+    """Whether ``path`` is a model file (``identify --save-model``), not a result JSON."""
+    from jaxhyst.saved import FORMAT
+
+    try:
+        with open(path, "rb") as fh:
+            return f'"format": "{FORMAT}"'.encode() in fh.readline(4096)
+    except OSError:
+        return False
+
+
+def load_model_fit(path: str):
+    """As `load_result` for a model file: (its header's meta, the problem spec with the
+    data path resolved, the rebuilt problem, the fitted parameters — the law's
+    coefficients of a ``--vary`` fit), the data checked against the SHA-256 it was
+    fitted to."""
+    import os
+
+    import numpy as np
+
+    import jaxhyst as jh
+    from jaxhyst.model.paths import model_values, own_parameters
+    from jaxhyst.saved import read_header
+
+    from .problems import build_problem, model_parameters_from_json
+
+    meta = read_header(path).get("meta", {})
+    if "problem" not in meta:
+        raise CLIError(f"{path} holds a model without the problem it was fitted to (saved "
+                       "by Python or an older jaxhyst): report needs identify's --out result "
+                       "or a model saved by identify --save-model.")
+    spec = dict(meta["problem"])
+    if not os.path.isabs(spec["data"]):  # stored relative to the model file
+        spec["data"] = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(path)),
+                                                     spec["data"]))
+    if not os.path.isfile(spec["data"]):
+        raise CLIError(f"{path} was fitted to {spec['data']}, which is not there: put the "
+                       "data file back beside the model (same relative path).")
+    if meta.get("data_sha256") and file_sha256(spec["data"]) != meta["data_sha256"]:
+        raise CLIError(f"{spec['data']} changed since {path} was fitted to it (its SHA-256 "
+                       "differs): refit, or restore the file it was fitted to.")
+    model = jh.load_model(path)
+    if model.law is not None:
+        params = {n: np.float64(v) for n, v in model.coefficients.items()}
+    else:
+        form = model.variant if own_parameters(model.variant) else None
+        members = tuple(m for m in (model.params, model.losses, form) if m is not None)
+        flat = {n: np.asarray(v) for n, v in model_values(members).items()}
+        params = model_parameters_from_json(flat, model.variant, f"parameters in {path}")
+    return meta, spec, build_problem(spec), params
+
+
 def model_at(args, model, path: str, *, frequency=None, temperature=None, amplitude=None,
              amplitude_option: str = "--field-amplitude", amplitude_unit: str = "A/m"):
     """``model`` ready for one drive: a condition law evaluated at the conditions the

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 
+from .models import is_model_file
 from .options import COUNT, FINITE, POSITIVE
 from .problems import load_result
 from .spec import CLIError, check_outputs, loop_field, print_result, select_loops, warn
@@ -52,7 +53,7 @@ def run(args) -> int:
 
     from .predictions import error_summary, predict_loops, records_of
 
-    if args.result.endswith(".eqx"):  # a saved model (identify --save-model)
+    if is_model_file(args.result):  # a saved model (identify --save-model)
         from .predict_model import run_model
 
         return run_model(args)

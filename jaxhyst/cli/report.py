@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 
+from .models import is_model_file, load_model_fit
 from .options import POSITIVE, POSITIVE_INT
 from .problems import load_result
 from .spec import check_outputs, print_result
@@ -15,8 +16,9 @@ def add_parser(sub) -> None:
         "report", help="identifiability of an identify result",
         description="Singular values, null directions, standard errors, identifiable "
         "combinations and (optionally) profile likelihoods of a result written by "
-        "'jaxhyst identify --out'.")  # fmt: skip
-    parser.add_argument("result", help="result JSON from identify --out")
+        "'jaxhyst identify --out' or a model saved by 'identify --save-model'.")  # fmt: skip
+    parser.add_argument("result", help="result JSON from identify --out, or a model file "
+                        "from identify --save-model (its data file where it was fitted)")
     parser.add_argument("--profile", action="append", help="profile likelihood of this "
                         "parameter (repeatable)")
     parser.add_argument("--profile-points", type=POSITIVE_INT, default=21,
@@ -34,7 +36,8 @@ def run(args) -> int:
     from jaxhyst.analysis import identifiability, profile_likelihood
 
     check_outputs(args)
-    _, _, problem, params = load_result(args.result)
+    _, _, problem, params = (load_model_fit if is_model_file(args.result)
+                             else load_result)(args.result)
     rep = identifiability(problem, params, max_rel_se=args.max_rel_se)
     summary = {"identifiability": rep.to_dict(), "suggest_fixed": list(rep.suggest_fixed())}
     text = [str(rep), f"  to make the rest identifiable and determined to "

@@ -49,7 +49,7 @@ def parameter_unit(name: str) -> str:
     feature = feature.removesuffix("^2")
     word = _FEATURE_WORDS.get(feature, feature)
     per = f"({word})²" if square else word
-    if param in ("alpha", "c"):  # (additive: jaxhyst.identify.conditions.ADDITIVE)
+    if param in ("alpha", "c"):  # (additive: jaxhyst.model.laws.ADDITIVE)
         return f"{PARAMETER_UNITS.get(param, '1')} per {per}"
     if feature == "T":
         return f"1 per {per} (exponent)"

@@ -1,0 +1,238 @@
+"""Parameters as smooth functions of the operating condition: frequency, temperature, and
+the loop's amplitude — one set of coefficients for all the records of a material, so that
+the model predicts a condition it was not fitted to.
+
+**The form.** Each record (a loop, a measured period) has a condition: frequency f (Hz),
+temperature T (°C) and amplitude A (the record's peak field, A/m, or peak flux density,
+T), as far as the data carry them. Its features are
+
+    ln(f/f_ref),   (T − T_ref)/(10 K),   ln(A/A_ref)
+
+(the references: the geometric mean of the fitted frequencies and amplitudes, the mean
+temperature), and a chosen parameter θ varies with the chosen features x_j as
+
+    θ = θ_ref · exp(Σ_j s_j·x_j [+ q_j·x_j²])   (a parameter ≥ 0: Ms, a, k, λs, E, Kz,
+                                                 Mz, Cz and the loss coefficients),
+    θ = θ_ref + Σ_j s_j·x_j [+ q_j·x_j²]        (α̃ and c; c kept in [0, 1]),
+
+so that a frequency dependence is a power law θ ∝ f^s and a temperature dependence an
+exponential. The others are shared. The coefficients θ_ref, s_j (and q_j with
+``degree=2``) are named ``k``, ``k:log_f``, ``k:T``, ``k:log_amplitude`` (``…^2``); they
+are fitted by `jaxhyst.identify.conditions.ConditionProblem` and carried by a saved
+`jaxhyst.Model` (this module sits below both, so that neither imports the other).
+
+**The amplitude form** (`ConditionModel` with ``{"k": ("log_amplitude",), …}``) is the
+remedy for the Jiles–Atherton minor-loop problem that parametrises the pinning and
+reversibility by the loop's peak field (one parameter set does not carry over between
+loops of different amplitude: how wide and how reversible a loop is depends on how far
+it is driven). It is judged only by held-out loops: `benchmarks/bench_amplitude.py`,
+with its results in benchmarks/RESULTS.md — it interpolates between amplitudes, it does
+not extrapolate beyond them.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..names import CONDITION_FEATURES
+from ..params import NAMES
+from .losses import LOSS_NAMES
+from .paths import OWN_NAMES
+
+#: The features a condition provides: name → (what, unit of the raw condition).
+FEATURES = CONDITION_FEATURES
+
+#: Every name a condition model may vary: the ten, the loss coefficients and the
+#: built-in forms' own parameters.
+VARYING_NAMES = (*NAMES, *LOSS_NAMES, *OWN_NAMES)
+#: Parameters that vary additively (the others multiplicatively: they are ≥ 0).
+ADDITIVE = ("alpha", "c")
+#: Default box of a coefficient s_j or q_j (per unit feature: a power of f within ±3).
+SLOPE_BOX = (-3.0, 3.0)
+
+
+class ConditionWarning(UserWarning):
+    """A prediction asked outside the fitted conditions (an extrapolation)."""
+
+
+@dataclass(frozen=True)
+class Conditions:
+    """The conditions of L records: ``frequency`` (Hz), ``temperature`` (°C),
+    ``amplitude`` (A/m or T), each a sequence of L values or None when the data do not
+    carry it."""
+
+    frequency: tuple | None = None
+    temperature: tuple | None = None
+    amplitude: tuple | None = None
+
+    def __post_init__(self):
+        lengths = set()
+        for name in ("frequency", "temperature", "amplitude"):
+            values = getattr(self, name)
+            if values is None:
+                continue
+            v = np.atleast_1d(np.asarray(values, dtype=np.float64))
+            if v.ndim != 1 or not np.all(np.isfinite(v)):
+                raise ValueError(f"Conditions.{name} must be a sequence of finite numbers; "
+                                 f"got {values!r}.")
+            if name != "temperature" and np.any(v <= 0):
+                raise ValueError(f"Conditions.{name} must be > 0 ({FEATURES[_KEY[name]][1]}); "
+                                 f"got {v[v <= 0][0]:g}.")
+            object.__setattr__(self, name, tuple(float(x) for x in v))
+            lengths.add(v.shape[0])
+        if len(lengths) > 1:
+            raise ValueError(f"Conditions: give one value per record for every condition; "
+                             f"got lengths {sorted(lengths)}.")
+
+    @property
+    def n_records(self) -> int:
+        for name in ("frequency", "temperature", "amplitude"):
+            if getattr(self, name) is not None:
+                return len(getattr(self, name))
+        return 0
+
+    def raw(self, feature: str) -> np.ndarray | None:
+        values = getattr(self, FEATURES[feature][0])
+        return None if values is None else np.asarray(values, dtype=np.float64)
+
+
+_KEY = {"frequency": "log_f", "temperature": "T", "amplitude": "log_amplitude"}
+
+
+@dataclass(frozen=True)
+class ConditionModel:
+    """Which parameters vary with which features (module docstring): ``varying`` is
+    ``{parameter name: (feature, …)}`` with features of `FEATURES`; ``degree`` 1 (linear
+    in each feature) or 2 (with its square). The references are set from the fitted
+    conditions (`fitted_to`). Immutable and hashable (it is static structure of a
+    problem)."""
+
+    varying: tuple = ()
+    degree: int = 1
+    reference: tuple = ()
+    fitted_range: tuple = ()
+    units: tuple = ()
+
+    def __init__(self, varying: Mapping | tuple = (), degree: int = 1,
+                 reference: Mapping | tuple = (), fitted_range: Mapping | tuple = (),
+                 units: Mapping | tuple = ()):
+        pairs = []
+        for name, feats in dict(varying).items():
+            feats = (feats,) if isinstance(feats, str) else tuple(feats)
+            if name not in VARYING_NAMES:
+                raise ValueError(f"ConditionModel: {name!r} is not a parameter (names: "
+                                 f"{list(VARYING_NAMES)}).")
+            bad = [f for f in feats if f not in FEATURES]
+            if bad or not feats:
+                raise ValueError(f"ConditionModel: {name} varies with {list(feats)}; the "
+                                 f"features are {list(FEATURES)}.")
+            pairs.append((name, feats))
+        if degree not in (1, 2):
+            raise ValueError(f"ConditionModel.degree must be 1 or 2; got {degree!r}.")
+        object.__setattr__(self, "varying", tuple(pairs))
+        object.__setattr__(self, "degree", int(degree))
+        object.__setattr__(self, "reference", tuple(dict(reference).items()))
+        object.__setattr__(self, "fitted_range", tuple(dict(fitted_range).items()))
+        object.__setattr__(self, "units", tuple(dict(units).items()))
+
+    @property
+    def varies(self) -> dict:
+        """``{name: (feature, …)}``."""
+        return dict(self.varying)
+
+    @property
+    def features(self) -> tuple[str, ...]:
+        """The features used, in a fixed order."""
+        return tuple(f for f in FEATURES if any(f in v for v in self.varies.values()))
+
+    def coefficient_names(self) -> list[str]:
+        """Names of the coefficients beyond the reference values: ``k:log_f`` …"""
+        out = []
+        for name, feats in self.varying:
+            for f in feats:
+                out.append(f"{name}:{f}")
+                if self.degree == 2:
+                    out.append(f"{name}:{f}^2")
+        return out
+
+    def fitted_to(self, conditions: Conditions) -> ConditionModel:
+        """This model with its references (and the fitted range, for warnings) from the
+        conditions of the records it is fitted to."""
+        ref, rng = {}, {}
+        for f in self.features:
+            raw = conditions.raw(f)
+            if raw is None:
+                users = [n for n, v in self.varying if f in v]
+                raise ValueError(f"{users} vary with the {FEATURES[f][0]}, but the records "
+                                 f"carry no {FEATURES[f][0]} ({FEATURES[f][1]}); give it in "
+                                 "Conditions or drop it from the ConditionModel.")
+            ref[f] = float(np.mean(raw)) if f == "T" else float(np.exp(np.mean(np.log(raw))))
+            rng[f] = (float(np.min(raw)), float(np.max(raw)))
+        return ConditionModel(self.varies, self.degree, ref, rng)
+
+    def feature_values(self, conditions: Conditions) -> np.ndarray:
+        """The features of each record, shape (L, F) in the order of `features`."""
+        cols = []
+        for f in self.features:
+            raw = conditions.raw(f)
+            if raw is None:
+                raise ValueError(f"the conditions lack the {FEATURES[f][0]} "
+                                 f"({FEATURES[f][1]}) that the fitted model varies with.")
+            ref = dict(self.reference)[f]
+            cols.append((raw - ref) / 10.0 if f == "T" else np.log(raw / ref))
+        return np.stack(cols, axis=-1) if cols else np.zeros((conditions.n_records, 0))
+
+    def warn_outside(self, conditions: Conditions) -> None:
+        """A `ConditionWarning` for each condition outside the fitted range, saying how far
+        (a ``ValueError`` naming a condition the model needs and the records lack)."""
+        for f in self.features:
+            raw, (lo, hi) = conditions.raw(f), dict(self.fitted_range)[f]
+            if raw is None:
+                what, unit = FEATURES[f]
+                raise ValueError(f"the fitted model varies with the {what}, and the records "
+                                 f"to predict carry none ({unit}); give it.")
+            for v in raw:
+                if lo <= v <= hi:
+                    continue
+                what, unit = FEATURES[f]
+                if f == "T":
+                    far = f"{min(abs(v - lo), abs(v - hi)):.3g} K"
+                else:
+                    far = f"a factor {max(v / hi, lo / v):.3g}"
+                warnings.warn(f"a prediction at {what} {v:g} {self._unit(f)} lies outside the "
+                              f"fitted range {lo:g}–{hi:g} {self._unit(f)} ({far} beyond "
+                              "it): an extrapolation.", ConditionWarning, stacklevel=3)
+
+    def _unit(self, feature: str) -> str:
+        """The unit of a feature's condition ("A/m or T" for an amplitude: the one of the
+        records fitted, A/m for fields, T for flux densities, when known)."""
+        return dict(self.units).get(feature, "A/m" if feature == "log_amplitude" else
+                                    FEATURES[feature][1])
+
+    def evaluate(self, coefficients: Mapping, X):
+        """Per-record values {name: (L,)} of every parameter the coefficients hold, at
+        features X (L, F)."""
+        X = jnp.asarray(X)
+        col = {f: X[:, i] for i, f in enumerate(self.features)}
+        L = X.shape[0]
+        out = {}
+        for name, ref in coefficients.items():
+            if ":" in name:
+                continue
+            exponent = jnp.zeros((L,), dtype=jnp.float64)
+            for f in self.varies.get(name, ()):
+                exponent = exponent + coefficients[f"{name}:{f}"] * col[f]
+                if self.degree == 2:
+                    exponent = exponent + coefficients[f"{name}:{f}^2"] * col[f] ** 2
+            if name in ADDITIVE:
+                value = ref + exponent
+                out[name] = jnp.clip(value, 0.0, 1.0) if name == "c" else value
+            else:
+                out[name] = ref * jnp.exp(exponent)
+        return out
+
