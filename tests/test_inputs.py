@@ -170,6 +170,9 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
       "--current-limit", "2.5"], 2, "sampled too coarsely"),
     (["compensate", "--amplitude", "1e-5", "--mean", "4e-5", "--measured", "{ok}"], 2,
      "no displacement column y"),
+    # issue 46: command-line spelling in the library's messages; report of a model file
+    (["simulate", "--samples-per-period", "2"], 2, "--samples-per-period must be"),
+    (["report", "{bh_model}"], 2, "without the problem it was fitted to"),
 ]
 
 
@@ -194,6 +197,7 @@ def test_malformed_command_line_inputs(files, argv, status, fragment, capsys):
     err = cap.err.strip()
     assert "Traceback" not in err and err.count("\n") == 0, err
     assert fragment in err, (argv, err)
+    assert not any(python in err for python in ("np.float64(", "array(", "_per_")), err
 
 
 def _api_table(files):

@@ -7,6 +7,7 @@ from __future__ import annotations
 import sys
 
 from .parser import build_parser
+from .spec import cli_wording
 
 
 def main(argv=None) -> int:
@@ -21,7 +22,7 @@ def main(argv=None) -> int:
     from ._signals import run_interruptibly
 
     def one_line(message, category, filename, lineno, file=None, line=None):
-        print(f"jaxhyst {args.command}: warning: {' '.join(str(message).split())}",
+        print(f"jaxhyst {args.command}: warning: {cli_wording(message, args)}",
               file=sys.stderr, flush=True)
 
     shown = warnings.showwarning
@@ -37,8 +38,7 @@ def main(argv=None) -> int:
         sys.stderr.close()
         return 0
     except (ValueError, TypeError, ImportError, OSError, FloatingPointError) as err:
-        msg = " ".join(str(err).split())  # one line
-        print(f"jaxhyst {args.command}: error: {msg}", file=sys.stderr)
+        print(f"jaxhyst {args.command}: error: {cli_wording(err, args)}", file=sys.stderr)
         return 2
     finally:
         warnings.showwarning = shown
