@@ -199,7 +199,8 @@ def cli_wording(text: str, args=None) -> str:
     text = re.sub(r"\b[Aa]rray\(([^(),]*)(?:, dtype=\w+)?\)", r"\1", text)
     for dest in sorted(vars(args) if args is not None else (), key=len, reverse=True):
         if "_" in dest and not dest.startswith("_"):
-            text = re.sub(rf"(?<![-\w./\\]){dest}(?![\w/\\]|\.\w)", "--" + dest.replace("_", "-"), text)
+            pattern = rf"(?<![-\w./\\]){dest}(?![\w/\\]|\.\w)"
+            text = re.sub(pattern, "--" + dest.replace("_", "-"), text)
     return text
 
 
