@@ -141,6 +141,12 @@ def test_profile_likelihood_agrees_with_the_linear_interval_and_flags_flat_profi
     # weakly nonlinear at 0.1 % noise: the profile interval is close to the GN one
     assert abs((prof.interval[1] - prof.interval[0]) / (hi - lo) - 1) < 0.25, (prof, lo, hi)
     assert np.min(prof.delta_chi2) < 1e-6 and np.max(prof.delta_chi2) > 3.84
+    # a grid that steps over the interval: said so, not called "not bounded by the data"
+    k = float(best.k)
+    coarse = profile_likelihood(one, best, "k", grid=[k - 6 * (hi - k), k + 6 * (hi - k),
+                                                      k + 9 * (hi - k)], **same)
+    assert coarse.unresolved and "no re-fit on the grid came within" in str(coarse)
+    assert "not bounded" not in str(coarse)
     # 30 % noise: the data no longer bound c inside its box
     noisy = eqx.tree_at(lambda q: q.data, problem,
                         jnp.asarray(problem.data + 300 * (data[0] - problem.data)))

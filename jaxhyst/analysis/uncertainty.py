@@ -55,6 +55,7 @@ class ProfileLikelihood:
     interval: tuple[float | None, float | None]
     results: list[str]
     roundoff: bool = False  # the best cost is at round-off: noise-free data
+    unresolved: bool = False  # no re-fit came within the threshold of the fit's cost
 
     def _digits(self) -> int:
         """Significant digits that tell neighbouring grid values apart (at least 6)."""
@@ -76,7 +77,13 @@ class ProfileLikelihood:
         hi_s = "unbounded" if hi is None else f"{hi:.{k}g}"
         head = (f"Profile likelihood of {self.name} (best {self.value:.{k}g}): 95 % interval "
                 f"{lo_s} … {hi_s}")
-        if not self.identifiable:
+        if self.unresolved:
+            head = (f"Profile likelihood of {self.name} (best {self.value:.{k}g}): no 95 % "
+                    f"interval — no re-fit on the grid came within Δχ² = 3.84 of the fit "
+                    f"(least {float(np.min(self.delta_chi2)):.4g}): the re-fits did not "
+                    "converge, or the grid steps over the interval; raise max_steps or "
+                    "give a finer grid around the value")
+        elif not self.identifiable:
             head += "  — not bounded by the data on that side (practically non-identifiable)"
         if self.roundoff:
             head += ("\n  the best fit is exact to round-off (noise-free data): Δχ² below "
@@ -89,7 +96,7 @@ class ProfileLikelihood:
         return {"name": self.name, "value": self.value, "grid": self.grid.tolist(),
                 "cost": self.cost.tolist(), "delta_chi2": self.delta_chi2.tolist(),
                 "interval": list(self.interval), "results": self.results,
-                "roundoff": self.roundoff}
+                "roundoff": self.roundoff, "unresolved": self.unresolved}
 
 
 def _crossing(grid, d, i0, direction):
@@ -162,6 +169,7 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
     d = (costs - c_min) / sigma2 if sigma2 > 0 else np.where(costs > c_min, np.inf, 0.0)
     d = np.where(np.isfinite(d), d, np.inf)
     i0 = int(np.argmin(d))
+    unresolved = not d[i0] <= CHI2_95  # (then no side can cross: say why, not "unbounded")
     interval = (_crossing(grid, d, i0, -1), _crossing(grid, d, i0, +1))
     # noise-free data: the unweighted cost (a mean square relative to the data's size)
     # at the level of float64 round-off
@@ -169,7 +177,7 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
     return ProfileLikelihood(name=name, value=value, grid=grid, cost=costs, delta_chi2=d,
                              theta=theta, interval=interval,
                              results=[str(n) for n in np.atleast_1d(outcome_name(results))],
-                             roundoff=bool(roundoff))
+                             roundoff=bool(roundoff), unresolved=bool(unresolved))
 
 
 @eqx.filter_jit
