@@ -240,6 +240,10 @@ def write_table(path: str, rows: Sequence[dict]) -> None:
     write_text(path, buf.getvalue())
 
 
+#: How long a scheduler given by address may take to answer.
+CONNECT_TIMEOUT = "10s"
+
+
 def _client(scheduler, workers: int | None):
     """A Dask client: on ``scheduler`` (an address) or a new local cluster of
     ``workers`` processes (one thread each)."""
@@ -249,7 +253,7 @@ def _client(scheduler, workers: int | None):
         return None
     if scheduler not in (None, "local"):
         try:
-            return Client(scheduler, timeout="10s")
+            return Client(scheduler, timeout=CONNECT_TIMEOUT)
         except (OSError, TimeoutError) as err:
             raise ManifestError(f"scheduler {scheduler}: cannot be reached ({err}); give "
                                 "the address of a running dask scheduler "

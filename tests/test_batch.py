@@ -104,8 +104,9 @@ def test_bad_manifests_are_refused_in_one_line_before_any_work(tmp_path, capsys,
     assert not (tmp_path / "o" / "results.csv").exists()
 
 
-def test_an_unreachable_scheduler_is_one_line(tmp_path, capsys):
+def test_an_unreachable_scheduler_is_one_line(tmp_path, capsys, monkeypatch):
     pytest.importorskip("dask.distributed")
+    monkeypatch.setattr("jaxhyst.batch.CONNECT_TIMEOUT", "1s")  # (refused at once anyway)
     _loops(tmp_path, 1)
     manifest = tmp_path / "m.csv"
     manifest.write_text("data\nloop0.csv\n")
