@@ -7,6 +7,8 @@ table. (The slow benchmarks' numbers are included from their own output files.)
 
 writes ``OUTDIR/generated/<step>/`` (figures, Markdown fragments the pages include, the
 logs) and ``OUTDIR/generated/<step>/status.json`` (exit status of every command, seconds).
+A step whose commands all succeeded is stamped with the sources' fingerprint and kept by
+the next run of the same sources: a build stopped part-way resumes at the step it was in.
 The mkdocs hook (``docs/hooks.py``) runs it when the package, the examples or this file
 changed since the last run; the tests run it once and check what it wrote.
 Progress goes to stdout from the first second: one line per command, with its time.
@@ -53,7 +55,9 @@ def _jaxhyst() -> list[str]:
 
 
 class Step:
-    """One step's directory, its commands (run in order, each logged) and its status."""
+    """One step's directory, its commands (run in order, each logged) and its status;
+    a step that finished every command with exit 0 stamps its directory with the
+    sources' fingerprint, so that a build stopped later resumes after it."""
 
     def __init__(self, out: Path, name: str):
         self.dir = out / "generated" / name
@@ -62,6 +66,18 @@ class Step:
         self.dir.mkdir(parents=True)
         self.name = name
         self.status: dict = {}
+
+    @staticmethod
+    def done(out: Path, name: str, stamp: str) -> bool:
+        """Whether step ``name`` under ``out`` finished without a failure for the sources
+        of fingerprint ``stamp`` (its output is then kept)."""
+        d = out / "generated" / name
+        try:
+            status = json.loads((d / "status.json").read_text())
+            ok = (d / "fingerprint").read_text() == stamp
+        except (OSError, ValueError):
+            return False
+        return ok and all(rc == 0 for k, rc in status.items() if not k.endswith("_seconds"))
 
     def run(self, label: str, argv: list[str], *, stdout_to: str | None = None,
             here: bool = False) -> int:
@@ -278,15 +294,21 @@ def main(argv: list[str]) -> int:
               f"{', '.join(STEPS)}.", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    failed = []
+    failed, stamp = [], fingerprint()
     for name in names:
+        if Step.done(out, name, stamp):  # (an interrupted build resumes after it)
+            print(f"[docs] {name}: kept from an earlier run of these sources", flush=True)
+            continue
         step = Step(out, name)
         STEPS[name](step)
         status = step.finish()
-        failed += [f"{name}/{label}" for label, rc in status.items()
-                   if not label.endswith("_seconds") and rc != 0]
+        bad = [f"{name}/{label}" for label, rc in status.items()
+               if not label.endswith("_seconds") and rc != 0]
+        if not bad:
+            (step.dir / "fingerprint").write_text(stamp)
+        failed += bad
     if set(names) == set(STEPS) and not failed:
-        (out / "generated" / "fingerprint").write_text(fingerprint())
+        (out / "generated" / "fingerprint").write_text(stamp)
     print(f"[docs] generated in {time.perf_counter() - t0:.0f} s"
           + (f"; FAILED: {', '.join(failed)} (see their .err files in {out}/generated)"
              if failed else ""), flush=True)
