@@ -81,8 +81,8 @@ class ProfileLikelihood:
             head = (f"Profile likelihood of {self.name} (best {self.value:.{k}g}): no 95 % "
                     f"interval — no re-fit on the grid came within Δχ² = 3.84 of the fit "
                     f"(least {float(np.min(self.delta_chi2)):.4g}): the re-fits did not "
-                    "converge, or the grid steps over the interval; raise max_steps or "
-                    "give a finer grid around the value")
+                    "converge, or the grid steps over the interval; profile on a finer "
+                    "grid around the value (more points), or with more steps")
         elif not self.identifiable:
             head += "  — not bounded by the data on that side (practically non-identifiable)"
         if self.roundoff:
