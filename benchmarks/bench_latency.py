@@ -120,13 +120,13 @@ def _child(what):
         d = jh.sinusoidal_field(f, 200.0, 0.0, samples_per_period=100)
         sim = jh.simulate(p, NO_ACTUATOR, d, form, losses=jh.Losses(0.05, 0.5))
         drives.append(d)
-        data.append(np.asarray(d.observed(sim.B)))
+        data.append(4e-7 * np.pi * np.asarray(sim.observed("H") + sim.observed("M")))
     box = jh.Bounds(p.replace(Ms=1e5, a=5.0, k=2.0, alpha=0.0, c=0.0),
                     p.replace(Ms=1e6, a=150.0, k=90.0, alpha=1e-3, c=1.0))
     fixed = {"lambda_s": 0.0, "E": 1.0, "Kz": 1.0, "Mz": 1.0, "Cz": 0.0}
     space = jh.ParameterSpace.for_model(box, fixed=fixed,
                                         losses={"eddy": (0.0, 1.0), "excess": (0.0, 5.0)},
-                                        form=form)
+                                        form=form, n_loops=3)
     problem = jh.JointProblem(data, drives, NO_ACTUATOR, space, output="flux_density",
                               variant=form, substeps=1 if what.endswith("play") else 2)
     starts = np.random.default_rng(0).uniform(0.1, 0.9, (8, space.n_free))
