@@ -123,7 +123,7 @@ class Model(eqx.Module):
 
     def __repr__(self) -> str:
         """The model with its values (not the arrays' shapes)."""
-        values = model_values(self._tree())
+        values = model_values(self.parameter_tree())
         if not is_concrete(self.params):
             shown = "traced values"
         elif all(np.ndim(v) == 0 for v in values.values()):
@@ -136,7 +136,7 @@ class Model(eqx.Module):
         return (f"Model({type(self.variant).__name__}: {shown}; {self.actuator.name}; "
                 f"{self.substeps} substeps{losses}{law})")
 
-    def _tree(self):
+    def parameter_tree(self):
         """The model's parameter pytree (`jaxhyst.model.paths.split_parameters`)."""
         members = [self.params]
         if self.losses is not None:

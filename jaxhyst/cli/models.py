@@ -53,10 +53,9 @@ def load_model_fit(path: str):
     import numpy as np
 
     import jaxhyst as jh
-    from jaxhyst.model.paths import model_values, own_parameters
     from jaxhyst.saved import read_header
 
-    from .problems import build_problem, model_parameters_from_json
+    from .problems import build_problem
 
     meta = read_header(path).get("meta", {})
     if "problem" not in meta:
@@ -74,13 +73,8 @@ def load_model_fit(path: str):
         raise CLIError(f"{spec['data']} changed since {path} was fitted to it (its SHA-256 "
                        "differs): refit, or restore the file it was fitted to.")
     model = jh.load_model(path)
-    if model.law is not None:
-        params = {n: np.float64(v) for n, v in model.coefficients.items()}
-    else:
-        form = model.variant if own_parameters(model.variant) else None
-        members = tuple(m for m in (model.params, model.losses, form) if m is not None)
-        flat = {n: np.asarray(v) for n, v in model_values(members).items()}
-        params = model_parameters_from_json(flat, model.variant, f"parameters in {path}")
+    params = ({n: np.float64(v) for n, v in model.coefficients.items()}
+              if model.law is not None else model.parameter_tree())
     return meta, spec, build_problem(spec), params
 
 

@@ -1,33 +1,16 @@
-"""Parameters as smooth functions of the operating condition: frequency, temperature, and
-the loop's amplitude — one set of coefficients for all the records of a material, so that
-the model predicts a condition it was not fitted to.
-
-**The form.** Each record (a loop, a measured period) has a condition: frequency f (Hz),
-temperature T (°C) and amplitude A (the record's peak field, A/m, or peak flux density,
-T), as far as the data carry them. Its features are
-
-    ln(f/f_ref),   (T − T_ref)/(10 K),   ln(A/A_ref)
-
-(the references: the geometric mean of the fitted frequencies and amplitudes, the mean
-temperature), and a chosen parameter θ varies with the chosen features x_j as
-
-    θ = θ_ref · exp(Σ_j s_j·x_j [+ q_j·x_j²])   (a parameter ≥ 0: Ms, a, k, λs, E, Kz,
-                                                 Mz, Cz and the loss coefficients),
-    θ = θ_ref + Σ_j s_j·x_j [+ q_j·x_j²]        (α̃ and c; c kept in [0, 1]),
-
-so that a frequency dependence is a power law θ ∝ f^s and a temperature dependence an
-exponential. The others are shared. The coefficients θ_ref, s_j (and q_j with
-``degree=2``) are the free parameters of a `ConditionProblem`, named ``k``,
-``k:log_f``, ``k:T``, ``k:log_amplitude`` (``…^2``), identified jointly from the records
-with every solver and reported with their intervals by the identifiability report.
+"""Condition problems: the coefficients of a condition law (`jaxhyst.model.laws`: a
+parameter as a smooth function of frequency, temperature and the loop's amplitude, the
+others shared) as the free parameters of a `ConditionProblem` over the records of a
+material, identified jointly with every solver and reported with their intervals by the
+identifiability report; `condition_space`, `per_record_space` and `split_records` for
+building and leave-one-out. `Conditions`, `ConditionModel` and the law's constants are
+re-exported from `jaxhyst.model.laws`.
 
 **The amplitude form** (`ConditionModel` with ``{"k": ("log_amplitude",), …}``) is the
 remedy for the Jiles–Atherton minor-loop problem that parametrises the pinning and
-reversibility by the loop's peak field (one parameter set does not carry over between
-loops of different amplitude: how wide and how reversible a loop is depends on how far
-it is driven). It is judged only by held-out loops: `benchmarks/bench_amplitude.py`,
-with its results in benchmarks/RESULTS.md — it interpolates between amplitudes, it does
-not extrapolate beyond them.
+reversibility by the loop's peak field. It is judged only by held-out loops:
+`benchmarks/bench_amplitude.py`, with its results in benchmarks/RESULTS.md — it
+interpolates between amplitudes, it does not extrapolate beyond them.
 """
 
 from __future__ import annotations

@@ -21,13 +21,9 @@ exponential. The others are shared. The coefficients θ_ref, s_j (and q_j with
 are fitted by `jaxhyst.identify.conditions.ConditionProblem` and carried by a saved
 `jaxhyst.Model` (this module sits below both, so that neither imports the other).
 
-**The amplitude form** (`ConditionModel` with ``{"k": ("log_amplitude",), …}``) is the
-remedy for the Jiles–Atherton minor-loop problem that parametrises the pinning and
-reversibility by the loop's peak field (one parameter set does not carry over between
-loops of different amplitude: how wide and how reversible a loop is depends on how far
-it is driven). It is judged only by held-out loops: `benchmarks/bench_amplitude.py`,
-with its results in benchmarks/RESULTS.md — it interpolates between amplitudes, it does
-not extrapolate beyond them.
+**The amplitude form** (``{"k": ("log_amplitude",), …}``: pinning and reversibility
+set by the loop's peak field, since one parameter set does not carry over between loops
+of different amplitude) and how it is judged: `jaxhyst.identify.conditions`.
 """
 
 from __future__ import annotations
