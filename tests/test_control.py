@@ -4,6 +4,7 @@ learning on a plant that differs from the model, unreachable references, bad inp
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import jax
@@ -215,6 +216,37 @@ def test_a_shifted_record_is_detected_and_corrected_or_refused(learner, delay):
         strict.step(strict.init(), plant.measure(learner.init().input))
 
 
+def test_a_known_delay_is_taken_as_given_and_the_lag_left_limits_the_band(learner):
+    """The acquisition's delay given: a record late by 3 samples with ``delay=3`` is
+    corrected by exactly 3; with ``delay=0`` (none, known) a record late by 2 samples is
+    not shifted, and the lag left (a phase error that grows with frequency) limits the
+    learning band to where it turns the phase by at most π/3."""
+    plant = SimulatedPlant(MODEL, SINE, delay=3)
+    given = IterativeLearning(learner.compensation, learner.residuals, delay=3)
+    report = given.step(given.init(), plant.measure(given.init().input)).reports[-1]
+    assert report.delay == 3 and report.error < 1e-5
+    plant = SimulatedPlant(MODEL, SINE, delay=2)
+    none = IterativeLearning(learner.compensation, learner.residuals, delay=0)
+    state = none.step(none.init(), plant.measure(none.init().input))
+    report = state.reports[-1]
+    assert report.delay == 0 and abs(report.lag - 2) < 0.3
+    assert state.band == pytest.approx(1.0 / (6.0 * report.lag * SINE.dt), rel=1e-9)
+    assert "the plant's lag against the model (+2" in report.reason
+
+
+def test_a_step_is_held_to_what_the_plant_has_borne_out(learner):
+    """A step no larger per unit of measured error than the state's ``reach``, and the
+    report says so."""
+    start = dataclasses.replace(learner.init(), reach=0.01)
+    plant = _plant(3)
+    state = learner.step(start, plant.measure(start.input))
+    report = state.reports[-1]
+    assert report.step == pytest.approx(0.01 * report.error, rel=1e-3)
+    assert "the step held to 0.01× the error" in report.reason
+    free = learner.step(learner.init(), plant.measure(start.input)).reports[-1]
+    assert free.step > 10 * report.step
+
+
 def test_a_reference_beyond_the_stroke_is_reported_with_where():
     """15–75 µm, where ±8 kA/m reach about 19–57 µm: two stretches beyond the stroke, one
     at the top and one at the bottom, each covering the samples outside the static range
@@ -255,6 +287,12 @@ def test_a_reference_beyond_the_stroke_is_reported_with_where():
      "samples_per_period must be an integer >= 8"),
     (lambda: sinusoidal_reference(-1.0, 15e-6, 37e-6), "frequency must be in"),
     (lambda: compensate(jh.TABLE3[10], SINE), "must be a jaxhyst.Model"),
+    (lambda: IterativeLearning.of(MODEL, SINE, current_limit=LIMIT, delay=-1),
+     "delay = -1: a known acquisition delay is a whole number of samples"),
+    (lambda: IterativeLearning.of(MODEL, SINE, current_limit=LIMIT, delay="sometimes"),
+     "delay must be 'correct', 'refuse' or the acquisition's delay"),
+    (lambda: IterativeLearning.of(MODEL, SINE, current_limit=LIMIT, delay=True),
+     "delay must be 'correct', 'refuse' or the acquisition's delay"),
 ])
 def test_bad_input_gets_one_line(call, fragment):
     with pytest.raises((ValueError, TypeError)) as info:

@@ -75,6 +75,8 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     (["simulate", "--png", "x.xyz"], 2, "figures are written as"),
     (["compensate", "--current-limit", "2.5", "--gain", "7"], 2, "applies to learning"),
     (["compensate", "--current-limit", "2.5", "--periods", "0"], 2, "--periods"),
+    (["compensate", "--current-limit", "2.5", "--known-delay", "2"], 2,
+     "--known-delay 2 applies to learning"),
     (["compensate", "--current-limit", "2.5", "--noise", "0.01"], 2,
      "--noise describes the simulated plant"),
     (["compensate", "--current-limit", "2.5", "--state", "{missing}"], 2,

@@ -93,6 +93,10 @@ def add_parser(sub) -> None:
     parser.add_argument("--noise", type=NON_NEGATIVE, help="with --plant: measurement noise σ "
                         "over the reference's peak-to-peak (e.g. 0.005)")
     parser.add_argument("--delay", type=COUNT, help="with --plant: acquisition delay, samples")
+    parser.add_argument("--known-delay", type=COUNT, help="with --measured or --plant: the "
+                        "acquisition's delay in samples where it is known (0: none), "
+                        "corrected exactly, every other lag taken for the plant's phase "
+                        "(default: a late record of a sample or more is corrected)")
     parser.add_argument("--mode", help="with --plant: an unmodelled structural mode "
                         "'FREQUENCY,DAMPING' (Hz, ratio), e.g. '2500,0.05'")
     parser.add_argument("--seed", type=COUNT, default=0, help="with --plant: of the noise")
@@ -140,6 +144,9 @@ def _conflicts(args) -> None:
         raise CLIError(f"--gain {args.gain:g} applies to learning (--measured or --plant).")
     if args.gain is not None and args.gain > 1:
         raise CLIError(f"--gain {args.gain:g}: the learning gain must lie in (0, 1].")
+    if args.known_delay is not None and not (args.measured or args.plant):
+        raise CLIError(f"--known-delay {args.known_delay} applies to learning (--measured or "
+                       "--plant).")
     if args.state and not args.measured:
         raise CLIError("--state carries learning between runs of --measured; give --measured.")
     rehearsal = [o for o in ("noise", "delay", "mode") if getattr(args, o) is not None]
@@ -242,7 +249,7 @@ def run(args) -> int:
     import numpy as np
 
     from jaxhyst.control import compensate
-    from jaxhyst.control.learning import state_to_dict
+    from jaxhyst.control.learning_state import state_to_dict
     from jaxhyst.control.tracking import evaluate
     from jaxhyst.io import write_columns_csv, write_json
     from jaxhyst.progress import TextProgressMeter

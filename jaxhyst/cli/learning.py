@@ -76,12 +76,14 @@ def learn(args, model, reference, options):
     import numpy as np
 
     from jaxhyst.control import IterativeLearning
-    from jaxhyst.control.learning import state_from_dict
+    from jaxhyst.control.learning_state import state_from_dict
     from jaxhyst.io import read_json
 
+    delay = "correct" if args.known_delay is None else args.known_delay
     if args.plant:  # (every input checked before the long work)
         plant = _plant(args, model, reference)
-        learner = IterativeLearning.of(model, reference, gain=args.gain or 1.0, **options)
+        learner = IterativeLearning.of(model, reference, gain=args.gain or 1.0, delay=delay,
+                                       **options)
         state = learner.init()
         for _ in range(args.iterations):
             if stop_requested():
@@ -105,7 +107,8 @@ def learn(args, model, reference, options):
             raise CLIError(f"--measured {args.measured}: its input is not the one --state "
                            f"{args.state} says to apply next; measure that input (or remove "
                            "the state file to start again from this run).")
-    learner = IterativeLearning.of(model, reference, gain=args.gain or 1.0, **options)
+    learner = IterativeLearning.of(model, reference, gain=args.gain or 1.0, delay=delay,
+                                       **options)
     if state is None:
         state = learner.state_for(applied)
     try:

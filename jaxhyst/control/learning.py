@@ -38,7 +38,18 @@ error is filtered first: the measurement noise beyond the band never reaches the
   (the record shifted back) and reported, or refused with the shift named
   (``delay="refuse"``). Only a late measurement is an acquisition delay: one that leads
   the prediction shows the plant's phase differing from the model's, and is reported,
-  not corrected.
+  not corrected. A late one is ambiguous: a plant 10 % off the model lags or leads it by
+  up to 1.5 samples at 200 per period, and such a lag corrected as a delay leaves the
+  plant tracking a shifted reference (2–5 σ off while the measured error sits at the
+  noise floor). Where the acquisition's delay is known, give it (``delay=0``, ``3`` …):
+  it is then corrected exactly and every lag beyond it is the plant's phase.
+- **Phase.** The lag left between plant and model (after any delay) is a phase error
+  growing with frequency; learning is limited to the band where it stays below
+  `PHASE_MARGIN` (π/3; learning diverges beyond π/2).
+- **Step size.** A step is no larger, per unit of measured error, than `REACH_GROWTH`
+  (1.5) times the largest step per unit of error after which the error fell as the
+  model predicted (the first step is the model's own): a linearisation is not trusted
+  farther than the plant has followed it (``state.reach``; halved with an undone step).
 - **Convergence and stalls.** Learning stops when the model predicts no fall larger
   than the noise (within its band: what is left lies where it is not trusted), after
   three undone steps in a row, or with a band below the reference's fundamental, and
@@ -62,6 +73,7 @@ import numpy as np
 
 from ..saved import Model
 from .compensate import Compensation, compensate, rms_error
+from .learning_state import LearningReport, LearningState
 from .limits import InputMap
 from .reference import Reference
 from .refine import RESIDUAL_UNIT, TrackingResiduals
@@ -76,70 +88,22 @@ MIN_FACTOR = 1.0 / 64
 MAX_REJECTED = 3
 #: Learning stops once the measured error is within this multiple of the noise.
 NOISE_FLOOR = 1.5
+#: A step whose error fell as predicted lets the next steps be this many times larger
+#: per unit of error (`LearningState.reach`).
+REACH_GROWTH = 1.5
+#: The phase error (radians) the model may have at the top of the learning band: the
+#: band ends where the lag between plant and model found at the fundamental would turn
+#: the phase by this much (learning diverges beyond π/2).
+PHASE_MARGIN = np.pi / 3
+
+
+def _borne_out(reach, ratio):
+    """The step per unit of error borne out: the larger of ``reach`` (None: none yet)
+    and ``ratio``."""
+    return ratio if reach is None else max(reach, ratio)
 
 class DelayError(ValueError):
     """The measured record is shifted against the input (``delay="refuse"``)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class LearningReport:
-    """What one learning step did: the ``iteration``; the measured rms ``error`` and the
-    noise σ estimated (both relative to the reference's peak-to-peak); the ``delay``
-    corrected (whole samples) and the ``lag`` found (samples, > 0: the measurement
-    late against the model's prediction); the ``action`` (``accepted``, ``undone``, ``stopped``)
-    and why; the error the model ``predicted`` for the next input; the ``step`` taken
-    (rms change of the input over its swing); the step ``factor`` γ and the learning
-    ``band`` (Hz) it used."""
-
-    iteration: int
-    error: float
-    noise: float
-    delay: int
-    lag: float
-    action: str
-    reason: str
-    predicted: float | None
-    step: float
-    factor: float
-    band: float
-
-    def __str__(self) -> str:
-        pred = "" if self.predicted is None else f", predicted next {self.predicted:.3e}"
-        delay = (f", delay {self.delay:+d} samples corrected" if self.delay else
-                 f", the plant leads the model by {-self.lag:.2f} samples (its phase: "
-                 "not an acquisition delay)" if self.lag <= -0.25 else
-                 f", lag {self.lag:+.2f} samples" if self.lag >= 0.25 else "")
-        return (f"iteration {self.iteration}: measured error {self.error:.3e} (noise "
-                f"{self.noise:.2e}){delay}; {self.action}: {self.reason}; step "
-                f"{self.step:.2e}{pred}; factor {self.factor:.3g}, band {self.band:.4g} Hz")
-
-
-@dataclasses.dataclass(frozen=True)
-class LearningState:
-    """Where the learning stands: ``z`` the input coordinates and ``input`` (shape (N,),
-    A or A/m) to apply next; ``iteration`` (0 before the first measurement); ``errors``:
-    the measured rms error / peak-to-peak of each measurement; ``reports``: a
-    `LearningReport` per step; ``stopped``: why learning stopped (None while it goes
-    on). The rest is the trust region: the best input's coordinates ``best_z``, its
-    error ``best_error`` and measured error signal ``best_e``, the step ``factor``, the
-    learning ``band`` (Hz) and the band it may grow to (``band_limit``: half the band of
-    the last undone step), the undone steps in a row ``rejected``."""
-
-    z: np.ndarray
-    input: np.ndarray
-    iteration: int
-    errors: tuple[float, ...]
-    reports: tuple[LearningReport, ...] = ()
-    stopped: str | None = None
-    best_z: np.ndarray | None = None
-    best_error: float | None = None
-    best_e: np.ndarray | None = None
-    factor: float = 1.0
-    band: float = np.inf
-    rejected: int = 0
-    predicted: float | None = None
-    band_limit: float = np.inf
-    predicted_e: np.ndarray | None = None
 
 
 @eqx.filter_jit
@@ -153,27 +117,34 @@ class IterativeLearning(eqx.Module):
     Build it with `of` (which runs `compensate` on the model for the first input).
     ``gain``: a factor (0, 1] on every step (1: the full step; the trust region shortens
     steps by itself). ``delay``: ``"correct"`` (default) or ``"refuse"`` a measured record
-    shifted against the input. ``noise``: the sensor's noise σ over the reference's
-    peak-to-peak where it is known (0: a noise-free measurement), else None: estimated
-    from each measurement."""
+    shifted against the input, or the acquisition's delay in whole samples where it is
+    known (0: none; then no other shift is made). ``noise``: the sensor's noise σ over
+    the reference's peak-to-peak where it is known (0: a noise-free measurement), else
+    None: estimated from each measurement."""
 
     compensation: Compensation
     residuals: TrackingResiduals
     gain: float = eqx.field(static=True, default=1.0)
-    delay: str = eqx.field(static=True, default="correct")
+    delay: str | int = eqx.field(static=True, default="correct")
     noise: float | None = eqx.field(static=True, default=None)
 
     @classmethod
     def of(cls, model: Model, reference: Reference, *, current_limit=None,
-           slew_limit=None, gain: float = 1.0, delay: str = "correct",
+           slew_limit=None, gain: float = 1.0, delay: str | int = "correct",
            noise: float | None = None, **options) -> IterativeLearning:
         """The learning controller of ``model`` for ``reference``; the limits and
         ``options`` are those of `compensate`."""
         g = float(gain)
         if not (np.isfinite(g) and 0 < g <= 1):
             raise ValueError(f"the learning gain must lie in (0, 1]; got {gain!r}.")
-        if delay not in ("correct", "refuse"):
-            raise ValueError(f"delay must be 'correct' or 'refuse'; got {delay!r}.")
+        if isinstance(delay, (int, np.integer)) and not isinstance(delay, bool):
+            if not 0 <= int(delay) < reference.n_samples:
+                raise ValueError(f"delay = {delay}: a known acquisition delay is a whole "
+                                 f"number of samples in [0, {reference.n_samples}).")
+            delay = int(delay)
+        elif delay not in ("correct", "refuse"):
+            raise ValueError(f"delay must be 'correct', 'refuse' or the acquisition's delay "
+                             f"in whole samples (0: none); got {delay!r}.")
         if noise is not None and not (np.isfinite(noise) and noise >= 0):
             raise ValueError(f"noise must be None (estimated) or a number >= 0 (σ over the "
                              f"reference's peak-to-peak); got {noise!r}.")
@@ -232,7 +203,10 @@ class IterativeLearning(eqx.Module):
         found = estimate_delay(mean, self.predict(state), periodic)
         # (a measurement can only be late: one that leads the prediction shows the
         # plant's phase differing from the model's, which learning absorbs)
-        lag = int(np.round(found)) if found >= DELAY_THRESHOLD else 0
+        if isinstance(self.delay, int):  # (the acquisition's delay, known)
+            lag = self.delay
+        else:
+            lag = int(np.round(found)) if found >= DELAY_THRESHOLD else 0
         if lag and self.delay == "refuse":
             raise DelayError(f"the measured displacement lags the input by {lag} samples "
                              f"({lag * self.reference.dt:.3g} s): shift it back (or let "
@@ -261,6 +235,7 @@ class IterativeLearning(eqx.Module):
         error, noise = rms_error(y, r, scale), sigma / scale
         factor, band, rejected, limit = state.factor, state.band, state.rejected, \
             state.band_limit
+        reach = state.reach
         nyquist = 0.5 / ref.dt
         fundamental = 1.0 / (ref.n_samples * ref.dt)
         margin = 2.0 * noise / np.sqrt(ref.n_samples) + 1e-3 * (state.best_error or error)
@@ -275,15 +250,20 @@ class IterativeLearning(eqx.Module):
             elif ratio >= 0.75:
                 why = f"the error fell as predicted ({ratio:.2g} of the predicted fall)"
                 factor, band = min(1.5 * factor, 1.0), min(2.0 * band, limit, nyquist)
+                reach = _borne_out(reach, REACH_GROWTH * state.step_ratio)
             elif ratio >= 0.25:
                 why = f"the error fell {ratio:.2g} of the predicted fall"
+                reach = _borne_out(reach, state.step_ratio)
             else:
                 factor = max(0.5 * factor, MIN_FACTOR)
+                reach = 0.5 * state.step_ratio
                 why = (f"the error fell only {ratio:.2g} of the predicted fall: steps "
                        "halved")
             best_z, best_error, best_e, rejected = state.z, error, e, 0
         else:
             action, rejected = "undone", rejected + 1
+            if state.step_ratio is not None:
+                reach = 0.5 * state.step_ratio
             failed = self._mispredicted(e, state.predicted_e)
             if failed is not None and failed >= 2.0 * fundamental and 0.5 * failed < band:
                 band = 0.5 * failed
@@ -317,8 +297,17 @@ class IterativeLearning(eqx.Module):
                 iteration=iteration, errors=errors, reports=(*state.reports, report),
                 stopped=stop, best_z=best_z, best_error=best_error, best_e=best_e,
                 factor=factor, band=band, rejected=rejected, predicted=None, band_limit=limit)
+        if abs(found - lag) >= 0.25:  # (the phase the model misses, as a time lag)
+            phased = PHASE_MARGIN / (2 * np.pi * abs(found - lag) * ref.dt)
+            if phased < band:
+                band, limit = phased, min(limit, phased)
+                why += (f"; the plant's lag against the model ({found - lag:+.2f} samples) "
+                        f"limits learning to {band:.4g} Hz")
         z, step, predicted, predicted_e = self._step(best_z, best_e, factor, band,
-                                                     noise * ref.scale)
+                                                     noise * ref.scale, reach, best_error)
+        if reach is not None and step >= (1 - 1e-9) * reach * best_error:
+            why += (f"; the step held to {reach:.3g}× the error (the largest step per unit "
+                    "of error the plant has borne out)")
         if action == "accepted" and best_error - predicted <= margin:
             stop = (f"converged in the band below {band:.4g} Hz: the model predicts no fall "
                     f"of the error larger than the noise"
@@ -339,23 +328,31 @@ class IterativeLearning(eqx.Module):
                              reports=(*state.reports, report), stopped=None, best_z=best_z,
                              best_error=best_error, best_e=best_e, factor=factor,
                              band=band, rejected=rejected, predicted=predicted,
-                             band_limit=limit, predicted_e=predicted_e)
+                             band_limit=limit, predicted_e=predicted_e, reach=reach,
+                             step_ratio=step / max(best_error, 1e-300))
 
-    def _step(self, z, e, factor, band, sigma):
+    def _step(self, z, e, factor, band, sigma, reach=None, error=None):
         """(the next coordinates, the step's rms change of input over its swing, the error
         the model predicts for it) from the measured error e (m) at z, its noise σ (m),
-        the step factor γ and the band (Hz)."""
+        the step factor γ and the band (Hz); a step larger than ``reach`` × the rms
+        ``error`` (over the peak-to-peak) is shortened to that."""
         ref, imap = self.reference, self.residuals.imap
         scale = ref.scale * RESIDUAL_UNIT
         J = np.asarray(_jacobian(self.residuals, jnp.asarray(z)))  # (residual units per z)
         target = low_pass(e, ref.dt, band, sigma) / scale
-        z_next = z + factor * self.gain * np.linalg.lstsq(J, target, rcond=RCOND)[0]
+        dz = factor * self.gain * np.linalg.lstsq(J, target, rcond=RCOND)[0]
         u = np.asarray(imap.input(jnp.asarray(z)))
+        swing = max(float(np.ptp(u)), 1e-300)
+        for _ in range(2 if reach is not None else 0):  # (the map to the input bends)
+            s = np.sqrt(np.mean((np.asarray(imap.input(jnp.asarray(z + dz))) - u) ** 2))
+            if s <= reach * error * swing:
+                break
+            dz = dz * (reach * error * swing / s)
+        z_next = z + dz
         u_next = np.asarray(imap.input(jnp.asarray(z_next)))
         # the model's prediction of the error after the step (linear in δz)
         predicted_e = (e / scale - J @ (z_next - z)) * scale
         predicted = float(np.sqrt(np.mean(predicted_e**2)) / ref.scale)
-        swing = max(float(np.ptp(u)), 1e-300)
         step = float(np.sqrt(np.mean((u_next - u) ** 2)) / swing)
         return z_next, step, predicted, predicted_e
 
@@ -371,44 +368,3 @@ class IterativeLearning(eqx.Module):
         if not D.max() > 0:
             return None
         return float(f[np.flatnonzero(D >= 0.5 * D.max())[0]])
-
-
-def state_to_dict(state: LearningState) -> dict:
-    """A JSON-able form of ``state`` (to carry learning across runs of the command line)."""
-    out = {}
-    for f in dataclasses.fields(state):
-        v = getattr(state, f.name)
-        if isinstance(v, np.ndarray):
-            v = v.tolist()
-        elif f.name == "reports":
-            v = [dataclasses.asdict(r) for r in v]
-        elif isinstance(v, tuple):
-            v = list(v)
-        out[f.name] = v
-    return out
-
-
-def state_from_dict(d: dict, n: int) -> LearningState:
-    """The `LearningState` written by `state_to_dict` (``n``: the reference's samples; a
-    state of another reference is refused in one line)."""
-    try:
-        arrays = {k: None if d.get(k) is None else np.asarray(d[k], dtype=np.float64)
-                  for k in ("z", "input", "best_z", "best_e", "predicted_e")}
-        state = LearningState(
-            z=arrays["z"], input=arrays["input"], iteration=int(d["iteration"]),
-            errors=tuple(float(e) for e in d["errors"]),
-            reports=tuple(LearningReport(**r) for r in d.get("reports", [])),
-            stopped=d.get("stopped"), best_z=arrays["best_z"],
-            best_error=None if d.get("best_error") is None else float(d["best_error"]),
-            best_e=arrays["best_e"], factor=float(d["factor"]),
-            band=np.inf if d.get("band") is None else float(d["band"]),
-            rejected=int(d["rejected"]),
-            predicted=None if d.get("predicted") is None else float(d["predicted"]),
-            band_limit=np.inf if d.get("band_limit") is None else float(d["band_limit"]),
-            predicted_e=arrays["predicted_e"])
-    except (KeyError, TypeError, ValueError) as err:
-        raise ValueError(f"not a learning state ({type(err).__name__}: {err}).") from None
-    if state.input.shape != (n,):
-        raise ValueError(f"a learning state of {state.input.shape[0]} samples; the reference "
-                         f"has {n}: it belongs to another reference.")
-    return state
