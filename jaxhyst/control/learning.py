@@ -38,11 +38,12 @@ error is filtered first: the measurement noise beyond the band never reaches the
   (the record shifted back) and reported, or refused with the shift named
   (``delay="refuse"``). Only a late measurement is an acquisition delay: one that leads
   the prediction shows the plant's phase differing from the model's, and is reported,
-  not corrected. A late one is ambiguous: a plant 10 % off the model lags or leads it by
-  up to 1.5 samples at 200 per period, and such a lag corrected as a delay leaves the
-  plant tracking a shifted reference (2–5 σ off while the measured error sits at the
-  noise floor). Where the acquisition's delay is known, give it (``delay=0``, ``3`` …):
-  it is then corrected exactly and every lag beyond it is the plant's phase.
+  not corrected. A late one is ambiguous: a plant a little off the model lags or leads
+  it by a fraction of its phase (about a sample at 200 per period for 10 %), and such a
+  lag corrected as a delay leaves the plant tracking a shifted reference (several σ off
+  while the measured error sits at the noise floor). Where the acquisition's delay is
+  known, give it (``delay=0``, ``3`` …): it is then corrected exactly and every lag
+  beyond it is the plant's phase.
 - **Phase.** The lag left between plant and model (after any delay) is a phase error
   growing with frequency; learning is limited to the band where it stays below
   `PHASE_MARGIN` (π/3; learning diverges beyond π/2).
