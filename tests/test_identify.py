@@ -128,7 +128,23 @@ def test_multistart_table_and_best(problem):
     assert res.extra["best_index"] == int(np.argmin(costs))
     # (res.cost is re-evaluated outside the batch: equal up to round-off at cost ~1e-32)
     assert res.cost == pytest.approx(min(costs), rel=1e-9, abs=1e-28)
-    assert all(r["result"] in ("successful", "max_steps_reached") for r in res.extra["starts"])
+    assert all(r["result"] in ("successful", "max_steps_reached", "overtaken")
+               for r in res.extra["starts"])
+
+
+def test_a_start_that_cannot_catch_up_is_left_behind():
+    """The batch's early end: a start at the converged best's minimum, or one whose fall
+    of cost over its last ten steps, kept up for every step left, would not reach it, is
+    left behind; one falling fast enough, or with too few steps to judge, is not."""
+    from jaxhyst.identify._stepped import left_behind
+
+    steps = np.array([40, 40, 40, 40, 5])
+    costs = np.array([1.0 + 1e-8, 2.0, 2.0, np.nan, 3.0])
+    history = [(np.array([20, 20, 20, 20, 1]), np.array([1.5, 2.0 + 1e-4, 3.0, 5.0, 4.0]))]
+    behind = left_behind(steps, costs, history, best_cost=1.0, max_steps=200)
+    # pace of start 1: 1e-4 / 20 steps x 160 left = 8e-4 < its gap 1: left behind;
+    # start 2: 1 / 20 x 160 = 8 >= 1: may catch up; start 4: 4 steps, not judged
+    assert behind.tolist() == [True, True, False, True, False]
 
 
 def test_scipy_trf_reaches_the_same_optimum(problem):

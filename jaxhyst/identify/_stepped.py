@@ -114,7 +114,19 @@ def solve_traced(problem: AbstractProblem, solver, z0, max_steps):
 
 # -- batches stepped from the host ---------------------------------------------------------
 
-_running_jit = jax.jit(running)  # (op by op, each operation would compile on its own)
+def _ended(carry, max_steps):
+    """(running, converged: stopped by the solver's own test) per start."""
+    _, _, _, term, result = carry
+    return running(carry, max_steps), term & (result == optx.RESULTS.successful)
+
+
+@jax.jit
+@jax.vmap
+def _mark_overtaken(mask, result):
+    return RESULTS.where(mask, RESULTS.overtaken, result)
+
+
+_ended_jit = jax.jit(_ended)  # (op by op, each operation would compile on its own)
 
 
 @eqx.filter_jit
@@ -144,17 +156,48 @@ def evaluate_at(problem, z):
     return problem.cost(z), problem.group_residuals(problem.space.params_from_z(z))
 
 
+#: Starts whose cost is within this fraction of the best converged start's are at its
+#: minimum (`SteppedSolve` stops them).
+SAME_MINIMUM = 1e-6
+#: The steps over which a start's pace (its fall of cost) is measured.
+PACE_STEPS = 10
+
+
+def left_behind(steps, costs, history, best_cost, max_steps):
+    """Which running starts cannot catch up with a converged start of cost
+    ``best_cost``: those at its minimum (within `SAME_MINIMUM`) and those whose fall of
+    cost over their last `PACE_STEPS` steps or more, kept up for every step left to them,
+    would not reach it. ``steps``, ``costs``: (K,) now; ``history``: earlier (steps,
+    costs) pairs, oldest first. A start with fewer steps behind it is not judged."""
+    gap = costs - best_cost * (1.0 + SAME_MINIMUM)
+    behind = ~np.isfinite(costs) | (gap <= 0)
+    for k in np.flatnonzero(~behind):
+        then = [(s[k], c[k]) for s, c in history if s[k] <= steps[k] - PACE_STEPS]
+        if then:
+            s0, c0 = then[-1]
+            pace = max(c0 - costs[k], 0.0) / (steps[k] - s0)  # (cost per step)
+            behind[k] = pace * (max_steps - steps[k]) < gap[k]
+    return behind
+
+
 class SteppedSolve:
     """A vmapped batch of solves from the starts ``z0s`` (K, n), advanced from the host a
     chunk of steps per dispatch (each dispatch kept near a quarter second): what the
     driver runs for `jaxhyst.identify.solve`, ``multistart`` and a hybrid's final
     solves. ``state`` is the batch's carry; `advance`, `done` and `describe` are the
-    driver's three questions; `outputs` ends the solves."""
+    driver's three questions; `outputs` ends the solves.
+
+    A batch of several starts ends once a start has converged below every other's cost
+    and none of the others can catch up (`left_behind`); those are reported
+    ``overtaken`` (``self.overtaken``: their mask) instead of running to their own end —
+    the slowest start no longer sets the time."""
 
     def __init__(self, problem: AbstractProblem, solver, z0s, max_steps: int,
                  with_cost: bool = False):
         self.problem, self.solver, self.max_steps = problem, solver, np.int64(max_steps)
-        self.with_cost = bool(with_cost)
+        self.early = np.shape(z0s)[0] > 1
+        self.with_cost = bool(with_cost) or self.early
+        self.history, self.overtaken = [], None
         # a minimiser may vmap the function itself (Nelder–Mead): trace it plainly
         self.tracing = plain_vmap if isinstance(solver, optx.AbstractMinimiser) else \
             contextlib.nullcontext
@@ -164,7 +207,24 @@ class SteppedSolve:
 
     def done(self, carry) -> bool:
         # (host scalars: jnp.asarray of one compiles a program of its own on first use)
-        return not np.any(np.asarray(_running_jit(carry, self.max_steps)))
+        run, converged = (np.asarray(v) for v in _ended_jit(carry, self.max_steps))
+        if not np.any(run):
+            return True
+        if not self.early or self.costs is None:
+            return False
+        steps, costs = np.asarray(carry[1]), np.asarray(self.costs, dtype=np.float64)
+        self.history.append((steps, costs))
+        converged = converged & np.isfinite(costs)
+        ranked = np.where(np.isfinite(costs), costs, np.inf)
+        if not np.any(converged) or np.min(ranked[converged]) > np.min(ranked):
+            return False
+        behind = left_behind(steps[run], costs[run], [(s[run], c[run]) for s, c in
+                                                       self.history[:-1]],
+                             np.min(ranked[converged]), int(self.max_steps))
+        if np.all(behind):
+            self.overtaken = run
+            return True
+        return False
 
     def advance(self, carry):
         t0 = time.perf_counter()
@@ -193,6 +253,8 @@ class SteppedSolve:
         with self.tracing():
             *out, known = jax.device_get(_finish_batch(self.problem, self.solver,
                                                        self.static, carry))
+        if self.overtaken is not None:
+            out[1] = jax.device_get(_mark_overtaken(jnp.asarray(self.overtaken), out[1]))
         missing = np.flatnonzero(~np.asarray(known))  # solves that accepted no step
         if missing.size:
             out[3], out[5] = np.array(out[3]), [np.array(r) for r in out[5]]  # (writable)

@@ -34,6 +34,7 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int, meter,
                                     describe=run.describe, meter=meter,
                                     meter_state=meter_state)
     out = run.outputs(carry)
+    overtaken = 0 if run.overtaken is None else int(np.sum(run.overtaken))
     if how != "done":
         stopped = RESULTS.where(jnp.asarray(True), RESULTS.interrupted, out[1])
         out = (out[0], jax.device_get(stopped), *out[2:])
@@ -45,7 +46,8 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int, meter,
     text = (f"{ended} after {int(steps[best])} steps, cost {costs[best]:.4e}"
             if steps.size == 1 else
             f"{ended}: the best start after {int(steps[best])} steps, cost "
-            f"{costs[best]:.4e} (the longest start {int(steps.max())} steps)")
+            f"{costs[best]:.4e} (the longest start {int(steps.max())} steps"
+            + (f"; {overtaken} stopped there, unable to catch up)" if overtaken else ")"))
     meter.close(meter_state, text)
     return out, how
 
@@ -149,8 +151,10 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
     table (final cost, outcome, steps, free values) in ``extra["starts"]``.
 
     ``starts``: box coordinates of shape (K, n_free), or a batch of parameters. The batch
-    runs until its slowest member stops, so ``max_steps`` matters. The outcome is the
-    best start's. ``progress`` and interruption as for `solve`."""
+    runs until a start has converged below the others and none of them can catch up at
+    its pace (those end ``overtaken``), or until its slowest member stops, so
+    ``max_steps`` matters. The outcome is the best start's. ``progress`` and
+    interruption as for `solve`."""
     if isinstance(starts, (int, np.integer)) and not isinstance(starts, bool):
         n = problem.space.n_free
         raise ValueError(
@@ -167,11 +171,11 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
     (zs, results, steps, costs, _, residuals), how = stepped_solve(
         problem, solver_obj, z0s, max_steps, progress_meter(progress, every=0), label)
     costs = np.asarray(costs)
+    names = np.atleast_1d(outcome_name(results))
     ranked = np.where(np.isfinite(costs), costs, np.inf)
-    best = int(np.argmin(ranked))
+    best = int(np.lexsort((names == "overtaken", ranked))[0])  # (a tie: the converged)
     space = problem.space
     values = np.asarray(point_of(space, zs)[0])  # (K, n), one compiled call
-    names = np.atleast_1d(outcome_name(results))
     table = [
         {"cost": float(costs[i]), "result": str(names[i]), "steps": int(steps[i]),
          "params": dict(zip(space.names, values[i].tolist(), strict=True))}

@@ -26,6 +26,8 @@ from .outputs import MAGNETIC_OUTPUTS
 class RESULTS(optx.RESULTS):  # pyright: ignore
     interrupted = ("The run was stopped (Ctrl-C, SIGTERM or stop_after) and returns the "
                    "best point so far.")
+    overtaken = ("Another start of the batch converged to a lower cost, which this one "
+                 "could not reach at its pace: it was stopped there.")
 
 
 #: Short names of outcomes (`outcome_name`), as result files write them:
@@ -33,8 +35,10 @@ class RESULTS(optx.RESULTS):  # pyright: ignore
 #: ``max_steps_reached`` — it stopped at its step limit without converging (more steps,
 #: or another start, may do better); ``nonfinite`` — the cost is NaN or inf (the model
 #: diverged or the data hold such); ``failed`` — another failure (a singular linear
-#: solve …); ``interrupted`` — stopped early, the best point so far.
-OUTCOME_NAMES = ("successful", "max_steps_reached", "nonfinite", "failed", "interrupted")
+#: solve …); ``interrupted`` — stopped early, the best point so far; ``overtaken`` — a
+#: start of a batch stopped because another converged lower than it could reach.
+OUTCOME_NAMES = ("successful", "max_steps_reached", "nonfinite", "failed", "interrupted",
+                 "overtaken")
 
 #: `RESULTS` entries by short name (the others are ``failed``).
 _BY_NAME = {
@@ -42,6 +46,7 @@ _BY_NAME = {
     "max_steps_reached": ("nonlinear_max_steps_reached", "max_steps_reached"),
     "nonfinite": ("nonfinite", "nonfinite_input"),
     "interrupted": ("interrupted",),
+    "overtaken": ("overtaken",),
 }
 
 
