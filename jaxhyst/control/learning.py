@@ -96,6 +96,9 @@ REACH_GROWTH = 1.5
 #: band ends where the lag between plant and model found at the fundamental would turn
 #: the phase by this much (learning diverges beyond π/2).
 PHASE_MARGIN = np.pi / 3
+#: A lag found whose phase at the fundamental is below this (radians, 5°) may be the
+#: plant's own: its correction as a delay is reported as ambiguous.
+AMBIGUOUS_PHASE = np.deg2rad(5.0)
 
 
 def _borne_out(reach, ratio):
@@ -278,6 +281,11 @@ class IterativeLearning(eqx.Module):
             why = (f"the error rose from {state.best_error:.3e} to {error:.3e}: back to the "
                    f"best input; {where}")
             best_z, best_error, best_e = state.best_z, state.best_error, state.best_e
+        if lag and self.delay == "correct" and 2 * np.pi * found / ref.n_samples < \
+                AMBIGUOUS_PHASE:
+            why += (f"; a plant a little off the model may lag it by {found:.2g} samples "
+                    "by itself: give the acquisition's delay where it is known (delay=, "
+                    "--known-delay)")
         errors = (*state.errors, error)
         stop = None
         if best_error <= NOISE_FLOOR * noise or best_error == 0:
