@@ -250,6 +250,20 @@ def test_a_step_is_held_to_what_the_plant_has_borne_out(learner):
     assert free.step > 10 * report.step
 
 
+def test_a_state_written_before_reach_was_kept_goes_on(learner):
+    """A learning state from a file without ``reach`` and ``step_ratio`` (written before
+    they were kept) is read and stepped on: the step limit starts afresh."""
+    from jaxhyst.control.learning_state import state_from_dict, state_to_dict
+
+    plant = _plant(4, noise=0.001, seed=4)
+    state = learner.step(learner.init(), plant.measure(learner.init().input))
+    old = {k: v for k, v in state_to_dict(state).items() if k not in ("reach", "step_ratio")}
+    state = state_from_dict(old, SINE.n_samples)
+    assert state.reach is None and state.step_ratio is None
+    state = learner.step(state, plant.measure(state.input))
+    assert state.reports[-1].action == "accepted" and len(state.errors) == 2
+
+
 def test_a_reference_beyond_the_stroke_is_reported_with_where():
     """15–75 µm, where ±8 kA/m reach about 19–57 µm: two stretches beyond the stroke, one
     at the top and one at the bottom, each covering the samples outside the static range

@@ -101,10 +101,14 @@ PHASE_MARGIN = np.pi / 3
 AMBIGUOUS_PHASE = np.deg2rad(5.0)
 
 
-def _borne_out(reach, ratio):
-    """The step per unit of error borne out: the larger of ``reach`` (None: none yet)
-    and ``ratio``."""
-    return ratio if reach is None else max(reach, ratio)
+def _borne_out(reach, ratio, growth):
+    """The step per unit of error borne out once a step of ``ratio`` (None: unknown, a
+    state written before it was kept) was followed: the larger of ``reach`` (None: none
+    yet) and ``growth`` × ``ratio``."""
+    if ratio is None:
+        return reach
+    return growth * ratio if reach is None else max(reach, growth * ratio)
+
 
 class DelayError(ValueError):
     """The measured record is shifted against the input (``delay="refuse"``)."""
@@ -254,13 +258,13 @@ class IterativeLearning(eqx.Module):
             elif ratio >= 0.75:
                 why = f"the error fell as predicted ({ratio:.2g} of the predicted fall)"
                 factor, band = min(1.5 * factor, 1.0), min(2.0 * band, limit, nyquist)
-                reach = _borne_out(reach, REACH_GROWTH * state.step_ratio)
+                reach = _borne_out(reach, state.step_ratio, REACH_GROWTH)
             elif ratio >= 0.25:
                 why = f"the error fell {ratio:.2g} of the predicted fall"
-                reach = _borne_out(reach, state.step_ratio)
+                reach = _borne_out(reach, state.step_ratio, 1.0)
             else:
                 factor = max(0.5 * factor, MIN_FACTOR)
-                reach = 0.5 * state.step_ratio
+                reach = reach if state.step_ratio is None else 0.5 * state.step_ratio
                 why = (f"the error fell only {ratio:.2g} of the predicted fall: steps "
                        "halved")
             best_z, best_error, best_e, rejected = state.z, error, e, 0
