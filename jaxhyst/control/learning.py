@@ -356,13 +356,14 @@ class IterativeLearning(eqx.Module):
         dz = factor * self.gain * np.linalg.lstsq(J, target, rcond=RCOND)[0]
         u = np.asarray(imap.input(jnp.asarray(z)))
         swing = max(float(np.ptp(u)), 1e-300)
+        u_next = np.asarray(imap.input(jnp.asarray(z + dz)))
         for _ in range(2 if reach is not None else 0):  # (the map to the input bends)
-            s = np.sqrt(np.mean((np.asarray(imap.input(jnp.asarray(z + dz))) - u) ** 2))
+            s = np.sqrt(np.mean((u_next - u) ** 2))
             if s <= reach * error * swing:
                 break
             dz = dz * (reach * error * swing / s)
+            u_next = np.asarray(imap.input(jnp.asarray(z + dz)))
         z_next = z + dz
-        u_next = np.asarray(imap.input(jnp.asarray(z_next)))
         # the model's prediction of the error after the step (linear in δz)
         predicted_e = (e / scale - J @ (z_next - z)) * scale
         predicted = float(np.sqrt(np.mean(predicted_e**2)) / ref.scale)

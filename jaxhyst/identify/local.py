@@ -21,6 +21,15 @@ from .space import z_from_u
 from .summary import point_of, summarize
 
 
+def best_start(costs, overtaken=None) -> int:
+    """The index of the lowest finite cost (0 if none is finite); between equal costs
+    a start not ``overtaken`` (mask, or None) — the one that converged."""
+    costs = np.asarray(costs)
+    ranked = np.where(np.isfinite(costs), costs, np.inf)
+    left = np.zeros(costs.shape, bool) if overtaken is None else np.asarray(overtaken)
+    return int(np.lexsort((left, ranked))[0])
+
+
 def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int, meter,
                   label: str):
     """Solve from each start of ``z0s`` (K, n) in one vmapped batch through the driver,
@@ -40,8 +49,7 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int, meter,
         out = (out[0], jax.device_get(stopped), *out[2:])
     steps = np.asarray(out[2])
     costs = np.asarray(out[3])
-    best = int(np.nanargmin(np.where(np.isfinite(costs), costs, np.nan))) \
-        if np.any(np.isfinite(costs)) else 0
+    best = best_start(costs, run.overtaken)
     ended = "interrupted" if how != "done" else "done"
     text = (f"{ended} after {int(steps[best])} steps, cost {costs[best]:.4e}"
             if steps.size == 1 else
@@ -172,8 +180,7 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
         problem, solver_obj, z0s, max_steps, progress_meter(progress, every=0), label)
     costs = np.asarray(costs)
     names = np.atleast_1d(outcome_name(results))
-    ranked = np.where(np.isfinite(costs), costs, np.inf)
-    best = int(np.lexsort((names == "overtaken", ranked))[0])  # (a tie: the converged)
+    best = best_start(costs, names == "overtaken")
     space = problem.space
     values = np.asarray(point_of(space, zs)[0])  # (K, n), one compiled call
     table = [
