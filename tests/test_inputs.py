@@ -77,6 +77,8 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     (["compensate", "--current-limit", "2.5", "--periods", "0"], 2, "--periods"),
     (["compensate", "--current-limit", "2.5", "--known-delay", "2"], 2,
      "--known-delay 2 applies to learning"),
+    (["compensate", "--current-limit", "2.5", "--plant", "table1", "--known-delay", "100000"],
+     2, "--known-delay 100000: a delay of a whole period or more"),
     (["compensate", "--current-limit", "2.5", "--noise", "0.01"], 2,
      "--noise describes the simulated plant"),
     (["compensate", "--current-limit", "2.5", "--state", "{missing}"], 2,

@@ -9,7 +9,7 @@ import sys
 from jaxhyst._interrupt import stop_requested
 from jaxhyst.names import DEFAULT_SUBSTEPS
 
-from .learning import learn
+from .learning import check_known_delay, learn
 from .options import COUNT, FINITE, NON_NEGATIVE, POSITIVE, POSITIVE_INT, UNITS_HELP, VARIANTS
 from .spec import (
     CLIError,
@@ -147,6 +147,8 @@ def _conflicts(args) -> None:
     if args.known_delay is not None and not (args.measured or args.plant):
         raise CLIError(f"--known-delay {args.known_delay} applies to learning (--measured or "
                        "--plant).")
+    if args.reference in ("sine", "tones"):  # (a file's period: once it is read)
+        check_known_delay(args.known_delay, args.samples_per_period)
     if args.state and not args.measured:
         raise CLIError("--state carries learning between runs of --measured; give --measured.")
     rehearsal = [o for o in ("noise", "delay", "mode") if getattr(args, o) is not None]

@@ -68,6 +68,14 @@ def _plant(args, model, reference):
         raise CLIError(f"--plant: {err}") from None
 
 
+def check_known_delay(delay: int | None, n_samples: int) -> None:
+    """One line for a ``--known-delay`` of a period (``n_samples``) or more."""
+    if delay is not None and delay >= n_samples:
+        raise CLIError(f"--known-delay {delay}: a delay of a whole period or more "
+                       f"({n_samples} samples) cannot be told from none; give the "
+                       "acquisition's delay in samples, less than one period.")
+
+
 def learn(args, model, reference, options):
     """The learning branch: one step from --measured (and --state), or --iterations
     steps on --plant. Returns (learner, state, measured errors)."""
@@ -80,6 +88,7 @@ def learn(args, model, reference, options):
     from jaxhyst.io import read_json
 
     delay = "correct" if args.known_delay is None else args.known_delay
+    check_known_delay(args.known_delay, reference.n_samples)
     if args.plant:  # (every input checked before the long work)
         plant = _plant(args, model, reference)
         learner = IterativeLearning.of(model, reference, gain=args.gain or 1.0, delay=delay,
