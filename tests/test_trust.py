@@ -149,7 +149,8 @@ def test_a_derived_box_that_binds_is_widened_and_the_fit_redone(tmp_path, capsys
     assert status == 0 and not res.get("at_bound"), err
 
 
-def test_the_profile_check_fires_on_a_curved_case_and_not_on_a_straight_one(noisy):
+def test_the_profile_check_fires_on_a_curved_case_and_not_on_a_straight_one(noisy,
+                                                                            monkeypatch):
     """0.1 % noise on the Table 1 loop, four parameters free: along every parameter's
     profile the cost reaches the threshold within 20 % at both ends of the linear
     interval — nothing flagged, nothing moved. Table 3 at 2000 Hz, ten parameters free
@@ -172,7 +173,28 @@ def test_the_profile_check_fires_on_a_curved_case_and_not_on_a_straight_one(nois
     curved = noisy_strain_problem(jh.TABLE3[2000], jh.ACTUATOR2, drive, 1e-3,
                                   jax.random.PRNGKey(3))
     bent = jh.solve(curved, jh.TABLE3[2000], report=False)
+    from jaxhyst.analysis import profile_intervals
+    from jaxhyst.identify.space import u_from_z
+
+    batches, held_costs = [], profile_intervals._held_costs
+
+    def recorded(problem, solver, lowers, uppers, z0s, max_steps):
+        costs, zs = held_costs(problem, solver, lowers, uppers, z0s, max_steps)
+        batches.append((np.asarray(lowers), np.asarray(uppers), np.asarray(u_from_z(z0s)),
+                        np.asarray(u_from_z(zs))))
+        return costs, zs
+
+    monkeypatch.setattr(profile_intervals, "_held_costs", recorded)
     rep = identifiability(curved, bent.params)
+    # a later batch starts each re-fit where that end's last ended (an end held at the
+    # same value: exactly there)
+    assert len(batches) >= 2
+    for (lo0, _, _, u_end), (lo1, hi1, u_start, _) in zip(batches, batches[1:],
+                                                          strict=False):
+        same = np.all(lo0 == lo1, axis=1)  # (the same held value)
+        assert same.any()
+        free = lo1[same] < hi1[same]  # (the held coordinate is pinned, wherever its z)
+        np.testing.assert_allclose(u_start[same][free], u_end[same][free], atol=1e-12)
     # (asymmetric profiles whose linear intervals still cover about 95 %: not flagged)
     assert all(p < 0.10 for p in rep.linear_miss().values()), rep.linear_miss()
     lower, upper = (np.asarray(b) for b in rep.bounds)

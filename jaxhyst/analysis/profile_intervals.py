@@ -10,10 +10,12 @@ threshold c (3.84, or the bound-aware one), the linear end stands — the quadra
 describes the profile. Elsewhere the end is moved to where the profile crosses c:
 successive batches of re-fits, each end's next value from the crossing of √Δχ², which is
 linear in the parameter where the cost is quadratic, bracketed once the crossing is
-passed. Quantities of one sign by construction (a box that does not reach 0) are profiled
-in ln|θ|, so that their intervals never cross 0; every end stays inside the box — an end the
-profile does not reach inside it is the box's, and the report says the data do not bound
-the parameter there.
+passed; each re-fit starts from that end's previous one, moved along the linearised path
+by the change of the held value (so a batch's re-fits continue where the last ended, and
+an end already settled costs a few steps). Quantities of one sign by construction (a box
+that does not reach 0) are profiled in ln|θ|, so that their intervals never cross 0; every
+end stays inside the box — an end the profile does not reach inside it is the box's, and
+the report says the data do not bound the parameter there.
 
 Δχ² is the cost difference when every residual group declares its noise level (the cost
 is then a χ²), else the cost difference over σ̂² = cost/(N − n) (and times the variance
@@ -29,7 +31,7 @@ import numpy as np
 
 from ..identify import solve_traced
 from ..identify.solvers import make_solver
-from ..identify.space import z_from_u
+from ..identify.space import u_from_z, z_from_u
 from .intervals import critical_value, held_at_bounds, path_point
 from .wording import Z95
 
@@ -39,17 +41,20 @@ TOLERANCE = 0.2
 ROUNDS = 5
 #: Levenberg–Marquardt steps of each constrained re-fit (warm-started).
 STEPS = 40
+#: The re-fits' Cauchy termination (rtol, atol): looser in rtol than a fit's (1e-10) — a
+#: re-fit needs its cost to ~1e-7 of itself, far below the Δχ² it is read for.
+RE_FIT_TOLERANCES = (1e-7, 1e-12)
 
 
 @eqx.filter_jit
 def _held_costs(problem, solver, lowers, uppers, z0s, max_steps):
-    """The cost of ``problem`` re-fitted in each member's box (a held parameter has
-    lower = upper), from each member's start: shape (B,)."""
+    """``problem`` re-fitted in each member's box (a held parameter has lower = upper),
+    from each member's start: (costs (B,), the solutions' solver coordinates (B, n))."""
 
     def one(lo, hi, z0):
         p = eqx.tree_at(lambda q: q.space, problem, problem.space.with_box(lo, hi))
-        _, _, _, cost, _ = solve_traced(p, solver, z0, max_steps)
-        return cost
+        z, _, _, cost, _ = solve_traced(p, solver, z0, max_steps)
+        return cost, z
 
     return jax.vmap(one)(lowers, uppers, z0s)
 
@@ -116,8 +121,16 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
     done = np.zeros(len(ends), bool)
     ratio_first = np.full(len(ends), np.nan)
     unbounded = {}
-    solver_ = make_solver(solver)
+    solver_ = make_solver(solver, *RE_FIT_TOLERANCES)
     B = len(ends)
+
+    def on_path(i, logs, v):
+        """The linearised profile path at θ_i = v, straight in ln θ for the positive
+        parameters (SI, shape (n,))."""
+        dx = C[:, i] / C[i, i] * (np.log(v / x_hat[i]) if logs else (v - x_hat[i]) / scale[i])
+        return path_point(x_hat, scale, positive, dx)
+
+    last_x, last_v = np.full((B, len(names)), np.nan), np.full(B, np.nan)
     for round_ in range(ROUNDS):
         todo = np.flatnonzero(~done)
         if todo.size == 0:
@@ -129,15 +142,21 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
             v = value(i, logs, s_now[k])
             values[k] = v
             lowers[k, i] = uppers[k, i] = v
-            # the linearised path, straight in ln θ for the positive parameters
-            dx = C[:, i] / C[i, i] * (np.log(v / x_hat[i]) if logs else
-                                      (v - x_hat[i]) / scale[i])
-            x0 = np.clip(path_point(x_hat, scale, positive, dx), lowers[k], uppers[k])
+            # from the last re-fit of this end moved along the path by the change of the
+            # held value (an end that is done starts where it ended: it costs a step);
+            # the first time, from the linearised path
+            x0 = on_path(i, logs, v)
+            if np.all(np.isfinite(last_x[k])):
+                x0 = last_x[k] + x0 - on_path(i, logs, last_v[k])
+            x0 = np.clip(x0, lowers[k], uppers[k])
             width = np.where(uppers[k] > lowers[k], uppers[k] - lowers[k], 1.0)
             z0s.append(np.asarray(z_from_u(np.clip((x0 - lowers[k]) / width, 0.0, 1.0))))
-        costs = np.asarray(_held_costs(problem, solver_, jnp.asarray(lowers),
-                                       jnp.asarray(uppers), jnp.asarray(np.array(z0s)),
-                                       max_steps))
+        costs, zs = _held_costs(problem, solver_, jnp.asarray(lowers), jnp.asarray(uppers),
+                                jnp.asarray(np.array(z0s)), max_steps)
+        costs = np.asarray(costs)
+        last_x = lowers + (uppers - lowers) * np.asarray(u_from_z(zs))
+        last_x[~np.isfinite(costs)] = np.nan  # (a failed re-fit: the path again)
+        last_v = values
         delta = np.maximum((costs - cost0) / sigma2, 0.0)
         for k in todo:
             i, side, logs = ends[k]
