@@ -130,7 +130,7 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
         dx = C[:, i] / C[i, i] * (np.log(v / x_hat[i]) if logs else (v - x_hat[i]) / scale[i])
         return path_point(x_hat, scale, positive, dx)
 
-    last_x, last_v = np.full((B, len(names)), np.nan), np.full(B, np.nan)
+    last_x, last_v = np.full((B, lower.size), np.nan), np.full(B, np.nan)
     for round_ in range(ROUNDS):
         todo = np.flatnonzero(~done)
         if todo.size == 0:
