@@ -163,6 +163,15 @@ SAME_MINIMUM = 1e-6
 PACE_STEPS = 10
 
 
+def best_start(costs, overtaken=None) -> int:
+    """The index of the lowest finite cost (0 if none is finite); between equal costs
+    a start not ``overtaken`` (mask, or None) — the one that converged."""
+    costs = np.asarray(costs)
+    ranked = np.where(np.isfinite(costs), costs, np.inf)
+    left = np.zeros(costs.shape, bool) if overtaken is None else np.asarray(overtaken)
+    return int(np.lexsort((left, ranked))[0])
+
+
 def left_behind(steps, costs, history, best_cost, max_steps):
     """Which running starts cannot catch up with a converged start of cost
     ``best_cost``: those at its minimum (within `SAME_MINIMUM`) and those whose fall of
@@ -215,12 +224,12 @@ class SteppedSolve:
         steps, costs = np.asarray(carry[1]), np.asarray(self.costs, dtype=np.float64)
         self.history.append((steps, costs))
         converged = converged & np.isfinite(costs)
-        ranked = np.where(np.isfinite(costs), costs, np.inf)
-        if not np.any(converged) or np.min(ranked[converged]) > np.min(ranked):
+        best = best_start(costs, ~converged)  # (a converged start first at equal cost)
+        if not converged[best]:
             return False
         behind = left_behind(steps[run], costs[run], [(s[run], c[run]) for s, c in
                                                        self.history[:-1]],
-                             np.min(ranked[converged]), int(self.max_steps))
+                             costs[best], int(self.max_steps))
         if np.all(behind):
             self.overtaken = run
             return True

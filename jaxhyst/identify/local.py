@@ -13,21 +13,12 @@ import numpy as np
 from .._driver import KEYBOARD, drive
 from .._interrupt import Interrupted
 from ..progress import NoProgressMeter, progress_meter
-from ._stepped import SteppedSolve
+from ._stepped import SteppedSolve, best_start
 from .problem import AbstractProblem, check_problem
 from .result import RESULTS, IdentificationResult, member, outcome_name
 from .solvers import make_solver, solver_name
 from .space import z_from_u
 from .summary import point_of, summarize
-
-
-def best_start(costs, overtaken=None) -> int:
-    """The index of the lowest finite cost (0 if none is finite); between equal costs
-    a start not ``overtaken`` (mask, or None) — the one that converged."""
-    costs = np.asarray(costs)
-    ranked = np.where(np.isfinite(costs), costs, np.inf)
-    left = np.zeros(costs.shape, bool) if overtaken is None else np.asarray(overtaken)
-    return int(np.lexsort((left, ranked))[0])
 
 
 def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int, meter,
