@@ -1,6 +1,6 @@
 """One short run on a GPU (the device check of a session that is lent one):
 
-    PYTHONPATH=. python benchmarks/gpu_check.py [--budget 240]
+    PYTHONPATH=. python benchmarks/gpu_check.py [--budget 240] [--parts classic,compensate,forms]
 
 1. Population evaluation, ns per individual·sample of ``jax.jit(jax.vmap(simulate))``
    and of `jaxhyst.simulate_batch` (what the GA calls) for P = 1 000 … 100 000 on the
@@ -9,6 +9,12 @@
    default, `jaxhyst.model.interval.on_accelerator`), in the same run.
 2. `jaxhyst.compensate` of one 100 Hz period (200 samples, Actuator2, Table 3's 10 Hz
    column): first call and median of three, with its errors (compare the CPU's).
+
+3. ``forms``: the pinning-cell forms (`jaxhyst.PlayJA`, `jaxhyst.PreisachJA`, 16 cells) on
+   a 50 Hz B(H) drive (T = 451, one substep): a population of P parameter sets (a, k, c
+   scaled by factors in [0.7, 1.3]) as ``jax.jit(jax.vmap(simulate))``, ns per
+   individual·sample on the GPU and on the same machine's CPU (its own time loop) in the
+   same run, and the largest difference of M between the two (relative to max |M|).
 
 Stops starting new measurements once ``--budget`` seconds have passed.
 """
@@ -28,7 +34,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--budget", type=float, default=240.0)
+    ap.add_argument("--parts", default="classic,compensate,forms")
     args = ap.parse_args()
+    parts = args.parts.split(",")
     start = time.perf_counter()
     sys.path.insert(0, HERE)
     import jax
@@ -47,9 +55,11 @@ def main():
 
     from jaxhyst.model import interval, timeloop
 
-    print("\n| time loop | P | jit(vmap) ns/indiv·sample | simulate_batch ns/indiv·sample "
-          "| first call (s) |\n|---|---|---|---|---|", flush=True)
-    for free in (False, None):  # the CPU's branching loop, then the accelerator's own
+    if "classic" in parts:
+        print("\n| time loop | P | jit(vmap) ns/indiv·sample | simulate_batch "
+              "ns/indiv·sample | first call (s) |\n|---|---|---|---|---|", flush=True)
+    for free in ((False, None) if "classic" in parts else ()):  # the CPU's loop, then the
+        # accelerator's own
         interval.FORCE_BRANCH_FREE = free
         jax.clear_caches()
         timeloop.clear_traces()
@@ -71,7 +81,9 @@ def main():
             print(f"| {label} | {P} | {t_vmap / (P * T) * 1e9:.2f} | "
                   f"{t_batch / (P * T) * 1e9:.2f} | {first:.1f} |", flush=True)
 
-    if time.perf_counter() - start > args.budget:
+    if "forms" in parts:
+        forms(start, args.budget)
+    if time.perf_counter() - start > args.budget or "compensate" not in parts:
         return
     from jaxhyst.control import compensate, sinusoidal_reference
 
@@ -90,6 +102,57 @@ def main():
           f"inverse {res.inverse_error:.4g}, refined {res.error:.4g}, {res.steps} steps, "
           f"run-in {res.run_in_periods} periods", flush=True)
     print(f"total {time.perf_counter() - start:.0f} s")
+
+
+def forms(start, budget):
+    """Part 3 (the module's docstring)."""
+    import jax
+    import jax.numpy as jnp
+    from bench_simulate import median_time
+
+    import jaxhyst as jh
+    from jaxhyst.identify.joint import NO_ACTUATOR
+    from jaxhyst.model import interval, timeloop
+    from jaxhyst.model.simulate import simulate_unchecked
+
+    drive = jh.sinusoidal_field(50.0, 120.0, 0.0, samples_per_period=200)
+    T = drive.n_samples
+    base = jh.Parameters(Ms=3.8e5, lambda_s=0.0, a=30.0, k=25.0, alpha=3e-5, c=0.4, E=1.0,
+                         Kz=1.0, Mz=1.0, Cz=0.0)
+    cpu = jax.devices("cpu")[0]
+    print("\n| form | P | GPU ns/indiv·sample | CPU ns/indiv·sample | first call GPU / CPU (s) "
+          "| max |ΔM| / max |M| |\n|---|---|---|---|---|---|", flush=True)
+    for form in (jh.PlayJA(spread=0.7, cells=16), jh.PreisachJA(spread=0.7, cells=16)):
+        def one(x, form=form):
+            p = base.replace(a=base.a * x[0], k=base.k * x[1], c=base.c * x[2])
+            return simulate_unchecked(p, NO_ACTUATOR, drive, form, substeps=1).M
+
+        for P in (1_000, 10_000, 100_000):
+            if time.perf_counter() - start > budget:
+                print(f"(budget reached before {type(form).__name__}, P = {P})")
+                return
+            X = np.random.default_rng(0).uniform(0.7, 1.3, (P, 3))
+            row = {}
+            for where, free in (("gpu", None), ("cpu", False)):
+                if where == "cpu" and P > 10_000:
+                    row[where] = (float("nan"), float("nan"), None)
+                    continue
+                interval.FORCE_BRANCH_FREE = free
+                timeloop.clear_traces()
+                batched = jax.jit(jax.vmap(one))
+                Xd = jax.device_put(jnp.asarray(X), cpu) if where == "cpu" else \
+                    jnp.asarray(X)
+                t0 = time.perf_counter()
+                M = batched(Xd).block_until_ready()
+                first = time.perf_counter() - t0
+                t = median_time(lambda b=batched, Xd=Xd: b(Xd).block_until_ready(), 3)
+                row[where] = (t / (P * T) * 1e9, first, np.asarray(M))
+            interval.FORCE_BRANCH_FREE = None
+            Mg, Mc = row["gpu"][2], row["cpu"][2]
+            diff = "—" if Mc is None else \
+                f"{np.max(np.abs(Mg - Mc)) / np.max(np.abs(Mc)):.1e}"
+            print(f"| {type(form).__name__} | {P} | {row['gpu'][0]:.2f} | {row['cpu'][0]:.2f} "
+                  f"| {row['gpu'][1]:.1f} / {row['cpu'][1]:.1f} | {diff} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -17,6 +17,11 @@ fallback is taken, so a JAX that moves one of them is noticed at once.
   Fallback: ``jax.core.jaxpr_as_fun``.
 - `backends_are_initialized` — ``jax._src.xla_bridge``: whether the XLA loop flag can
   still take effect. Fallback: assume JAX has not started.
+- `release_compiled` — ``jax._src.pjit`` (its C++ executable caches and ``_pjit_lower``)
+  and ``jax._src.interpreters.pxla._cached_compilation``: drop the compiled programs
+  (which hold the memory mappings, `jaxhyst._mappings`) but keep the traced ones, so a
+  function called again is lowered and loaded from the persistent cache without being
+  traced again. Fallback: ``jax.clear_caches()`` (the traces go too).
 """
 
 from __future__ import annotations
@@ -83,3 +88,34 @@ def backends_are_initialized() -> bool:
     except (ImportError, AttributeError):  # pragma: no cover - outside the tested range
         FALLBACKS.add("backends_are_initialized")
         return False
+
+
+try:
+    from jax._src import pjit as _pjit
+    from jax._src.interpreters import pxla as _pxla
+
+    _EXECUTABLE_CACHES = (_pjit._cpp_pjit_cache_fun_only,
+                          _pjit._cpp_pjit_cache_explicit_attributes)
+    _LOWERINGS = (_pjit._pjit_lower, _pxla._cached_compilation)
+    if not all(hasattr(c, "clear") for c in _EXECUTABLE_CACHES) or \
+            not all(hasattr(c, "cache_clear") for c in _LOWERINGS) or \
+            not hasattr(type(_EXECUTABLE_CACHES[0]), "clear_all"):
+        raise AttributeError
+except (ImportError, AttributeError):  # pragma: no cover - outside the tested range
+    _EXECUTABLE_CACHES = _LOWERINGS = None
+    FALLBACKS.add("release_compiled")
+
+
+def release_compiled() -> None:
+    """Drop JAX's compiled programs (every jitted function's executables and the lowerings
+    that hold them), keeping the traced programs: a function called again with the same
+    shapes is lowered and compiled (or loaded from the persistent cache) but not traced
+    again."""
+    if _EXECUTABLE_CACHES is None:  # pragma: no cover - outside the tested range
+        jax.clear_caches()
+        return
+    for cache in _EXECUTABLE_CACHES:
+        cache.clear()
+    type(_EXECUTABLE_CACHES[0]).clear_all()  # (every jitted function's own cache)
+    for cache in _LOWERINGS:
+        cache.cache_clear()

@@ -10,9 +10,10 @@ over many shapes) reaches it, and XLA then aborts the whole process inside a com
 
 `release_if_crowded` is called between units of work that may each compile (the items
 of `jaxhyst.batch`, the tests): where more than half of the limit is in use it drops
-JAX's caches of compiled programs (`jax.clear_caches`), which unmaps them; programs
-needed again are recompiled (or loaded from the persistent cache). Elsewhere than Linux,
-or where the counts cannot be read, it does nothing.
+JAX's compiled programs (`jaxhyst._jax_compat.release_compiled`), which unmaps them, and
+keeps the traced ones: a program needed again is lowered and recompiled (or loaded from
+the persistent cache) without being traced again. Elsewhere than Linux, or where the
+counts cannot be read, it does nothing.
 """
 
 from __future__ import annotations
@@ -46,8 +47,8 @@ def release_if_crowded(share: float = SHARE) -> bool:
     limit, used = _limit(), mappings_in_use()
     if limit is None or used is None or used <= share * limit:
         return False
-    import jax
+    from ._jax_compat import release_compiled
 
-    jax.clear_caches()
+    release_compiled()
     gc.collect()
     return True

@@ -67,11 +67,25 @@ def pytest_sessionfinish(session, exitstatus):
                 pass
 
 
+#: The tests after which the compiled programs were dropped (`release_if_crowded`): the
+#: tests after them trace and load again what they share with earlier ones.
+RELEASED: list = []
+
+
+def pytest_terminal_summary(terminalreporter):
+    if RELEASED:
+        more = " …" if len(RELEASED) > 3 else ""
+        terminalreporter.write_line(f"compiled programs released {len(RELEASED)} times near "
+                                    "the kernel's mapping limit (after "
+                                    f"{', '.join(RELEASED[:3])}{more})")
+
+
 @pytest.fixture(autouse=True)
-def _no_stop_request_left():
+def _no_stop_request_left(request):
     """A test that requests a stop (as the command line's Ctrl-C does) leaves none for
     the next; and the compiled programs are dropped before the session's memory mappings
     near the kernel's limit (XLA aborts the process there: see jaxhyst._mappings)."""
     yield
     clear_stop()
-    release_if_crowded()
+    if release_if_crowded():
+        RELEASED.append(request.node.nodeid)

@@ -108,3 +108,31 @@ def test_compiled_programs_are_released_before_the_mapping_limit(monkeypatch):
     monkeypatch.setattr(_mappings, "_limit", lambda: used // 4)
     assert _mappings.release_if_crowded()
     assert f._cache_size() == 0
+
+
+def test_a_release_drops_the_executables_and_keeps_the_traces():
+    """The mappings go with the compiled programs; a function called again after a
+    release is compiled again (or loaded) but not traced again, and computes the same."""
+    from jaxhyst import _mappings
+
+    traced = []
+
+    def body(x):
+        traced.append(1)
+        return jnp.cumsum(jnp.sin(x) * jnp.arange(x.shape[0]))
+
+    f = jax.jit(body)
+    x = jnp.linspace(0.0, 1.0, 37)
+    want = np.asarray(f(x))
+    programs = [jax.jit(lambda x, k=k: jnp.cos(x * k).sum()) for k in range(40)]
+    for g in programs:
+        g(x).block_until_ready()
+    before = _mappings.mappings_in_use()
+    compat.release_compiled()
+    assert f._cache_size() == 0
+    after = _mappings.mappings_in_use()
+    if before is not None:  # (Linux: the 41 programs' mappings are gone)
+        assert after < before - 40, (before, after)
+    np.testing.assert_array_equal(np.asarray(f(x)), want)
+    assert len(traced) == 1  # (not traced again)
+    assert f._cache_size() == 1
