@@ -290,3 +290,17 @@ def test_every_coefficient_of_a_law_is_printed_with_its_unit():
     assert unit_of("c:log_amplitude") == "1 per ln amplitude"  # c additive
     assert unit_of("a:T") == "1 per 10 K (exponent)"
     assert unit_of("alpha:T^2") == "1 per (10 K)²"
+
+
+def test_loops_at_several_frequencies_fitted_rate_independent_get_a_note(tmp_path):
+    from jaxhyst.cli.heldout import rate_note
+    from jaxhyst.io import read_loops
+
+    data = tmp_path / "loops.csv"
+    _write_conditions_file(data)
+    loops = read_loops(str(data), None)
+    text = rate_note({"data": str(data)}, loops)
+    assert "100–1600 Hz" in text and "--losses eddy,excess" in text
+    assert rate_note({"losses": ["eddy"]}, loops) is None  # (rate dependent)
+    assert rate_note({"vary": "k:log_f"}, loops) is None  # (a law in the frequency)
+    assert rate_note({}, loops[:1]) is None

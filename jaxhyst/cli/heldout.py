@@ -98,6 +98,25 @@ def _predict(spec, problem, params, loop):
             "_curve": (predicted, data)}
 
 
+def rate_note(spec, loops) -> str | None:
+    """Where the loops were measured at frequencies more than 10 % apart and nothing in
+    the model depends on the rate (no loss coefficients, no law in the frequency): what
+    that means and the options that change it; else None."""
+    from .problems import parse_vary
+
+    f = [lp.conditions.get("frequency") for lp in loops]
+    if len(loops) < 2 or any(v is None for v in f) or spec.get("losses") or \
+            any("log_f" in feats for feats in parse_vary(spec.get("vary")).values()):
+        return None
+    lo, hi = min(f), max(f)
+    if hi <= 1.1 * lo:
+        return None
+    return (f"the loops were measured at {lo:.4g}–{hi:.4g} Hz and the model is rate "
+            "independent: it draws every frequency alike. --losses eddy,excess adds the "
+            "rate-dependent model (the file needs times); --vary P:log_f a law in the "
+            "frequency")
+
+
 def check_comparison(spec, loops, forms) -> None:
     """One-line errors before any work: too few loops for the folds, a condition law a
     compared form cannot carry."""

@@ -16,6 +16,7 @@ from .heldout import (
     held_out_figure,
     held_out_text,
     leave_one_out,
+    rate_note,
 )
 from .models import file_sha256
 from .options import (
@@ -239,6 +240,8 @@ def run(args) -> int:
     if method not in HYBRID and (args.checkpoint or args.resume):
         raise CLIError(f"--checkpoint/--resume apply to the hybrid GAs; --method {method} is a "
                        "local solve (not checkpointed: rerun it).")
+    if args.progress and spec.get("joint") and rate_note(spec, loops):
+        note("identify", rate_note(spec, loops))
     held = curves = None
     if args.leave_one_out:  # (first: with several forms, it chooses the one to fit)
         held = leave_one_out(args, spec, given, loops, method, forms)
