@@ -5,6 +5,7 @@ a model *other* than the ones fitted.
     python benchmarks/bench_heldout_forms.py [--files mnzn,amplitude,frequency,relaxation]
                                              [--forms classic,energy,play,preisach]
                                              [--out benchmarks/bench_heldout_forms_output.md]
+                                             [--losses eddy,excess]
 
 Every number comes from the user's command, ``jaxhyst identify FILE --joint
 --leave-one-out --variant FORMS --out R.json`` (each fold's box from its training loops,
@@ -172,6 +173,8 @@ def main():
     ap.add_argument("--files", default="mnzn,amplitude,frequency")
     ap.add_argument("--forms", default="classic,energy,play,preisach")
     ap.add_argument("--out", default=os.path.join(HERE, "bench_heldout_forms_output.md"))
+    ap.add_argument("--losses", default="eddy,excess",
+                    help="the loss coefficients fitted on the frequency families")
     args = ap.parse_args()
     lines = [f"# bench_heldout_forms — {time.strftime('%Y-%m-%d')}, {os.uname().machine}, "
              f"{os.cpu_count()} cores", "",
@@ -189,10 +192,10 @@ def main():
                 path, extra = os.path.join(tmp, "amplitude.csv"), ()
                 amplitude_family(path)
             elif name == "relaxation":
-                path, extra = os.path.join(tmp, "relaxation.csv"), ("--losses", "eddy,excess")
+                path, extra = os.path.join(tmp, "relaxation.csv"), ("--losses", args.losses)
                 relaxation_family(path)
             else:
-                path, extra = os.path.join(tmp, "frequency.csv"), ("--losses", "eddy,excess")
+                path, extra = os.path.join(tmp, "frequency.csv"), ("--losses", args.losses)
                 frequency_family(path)
             result, seconds, status = run_cli(path, args.forms,
                                               os.path.join(tmp, f"{name}.json"), extra)

@@ -37,7 +37,7 @@ from .model.jiles_atherton import (
     VenkataramanJA,
 )
 from .model.laws import ConditionModel, Conditions
-from .model.losses import Losses
+from .model.losses import LOSS_NAMES, Losses
 from .model.paths import model_parameters, model_values, own_parameters, split_parameters
 from .model.play import AbstractPlayForm, PlayJA, PreisachJA
 from .model.simulate import Simulation, simulate, simulate_unchecked
@@ -166,6 +166,7 @@ def save_model(path: str | os.PathLike, model: Model, **meta) -> None:
               "actuator": {"name": str(model.actuator.name),
                            "has_turns": model.actuator.n is not None},
               "has_losses": model.losses is not None,
+              "loss_names": list(LOSS_NAMES) if model.losses is not None else None,
               "form_settings": _form_settings(model.variant),
               "law": _law_header(model),
               "versions": _versions(), "meta": meta}
@@ -246,10 +247,15 @@ def load_model(path: str | os.PathLike, variant: AbstractJAVariant | None = None
                               [jnp.zeros(shape) for _ in own])
     act = header["actuator"]
     actuator = Actuator(1.0, 1.0, 1.0 if act["has_turns"] else None, 0.0, name=act["name"])
-    losses = Losses(jnp.zeros(shape), jnp.zeros(shape)) if header.get("has_losses") else None
+    losses = Losses(*[jnp.zeros(shape) for _ in LOSS_NAMES]) if header.get("has_losses") \
+        else None
+    # (a file written before the lag existed holds eddy and excess only)
+    stored = header.get("loss_names") or ["eddy", "excess"]
     law, coefficients = _law_of(header)
     like = Model(params, actuator, variant, int(header["substeps"]), losses, law,
                  coefficients)
+    if losses is not None and tuple(stored) != LOSS_NAMES:
+        like = eqx.tree_at(lambda m: m.losses, like, tuple(jnp.zeros(shape) for _ in stored))
     with open(os.fspath(path), "rb") as fh:
         fh.readline()
         try:
@@ -261,4 +267,8 @@ def load_model(path: str | os.PathLike, variant: AbstractJAVariant | None = None
     if any(np.shape(a) != np.shape(b) for a, b in zip(leaves, like_leaves, strict=True)):
         raise ModelFileError(f"{path}: its arrays do not match its header; the file is "
                              "damaged.")
+    if isinstance(model.losses, tuple):
+        values = dict(zip(stored, model.losses, strict=True))
+        model = eqx.tree_at(lambda m: m.losses, model, Losses(
+            *[values.get(n, jnp.zeros(shape)) for n in LOSS_NAMES]))
     return model

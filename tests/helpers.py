@@ -187,11 +187,11 @@ def reference_flux(params: jh.Parameters, t, B, variant="energy", k_e=0.0, k_x=0
 
 
 def reference_dynamic(params: jh.Parameters, t, H, variant="energy", k_e=0.0, k_x=0.0,
-                      rtol=1e-10):
+                      rtol=1e-10, lag=0.0):
     """The H-driven rate-dependent model as the ODE it discretizes, written independently:
-    state (h, M) with H(t) − h = k_e·Ḃ + k_x·sign(Ḃ)·|Ḃ|^(1/2), Ḃ = μ0(1 + χ)·ḣ, Ṁ = χ·ḣ
-    (ḣ from the closed-form root of that balance), H linear in time per sample interval,
-    DOP853. Returns (h, M) at the samples."""
+    state (h, M) with H(t) − h = k_e·Ḃ + k_x·sign(Ḃ)·|Ḃ|^(1/2) + lag·ḣ, Ḃ = μ0(1 + χ)·ḣ,
+    Ṁ = χ·ḣ (ḣ from the closed-form root of that balance), H linear in time per sample
+    interval, DOP853. Returns (h, M) at the samples."""
     from scipy.integrate import solve_ivp
 
     p = params.to_dict()
@@ -209,7 +209,7 @@ def reference_dynamic(params: jh.Parameters, t, H, variant="energy", k_e=0.0, k_
             delta = 1.0 if R > 0 else -1.0
             chi = np_slope(s[0], s[1], delta, p, variant)
             c = MU0 * (1.0 + chi)
-            a, b = k_e * c, k_x * np.sqrt(c)
+            a, b = k_e * c + lag, k_x * np.sqrt(c)
             if a == 0.0 and b == 0.0:
                 raise ValueError("the static model has no time scale")
             root = (2 * abs(R) / (b + np.sqrt(b * b + 4 * a * abs(R)))) if b > 0 else \

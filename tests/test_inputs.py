@@ -227,6 +227,7 @@ def _api_table(files):
         (lambda: jh.Bounds.from_dict({**{n: (1.0, 2.0) for n in jh.NAMES}, "k": (3.0, 1.0)}),
          ValueError, "lower > upper"),
         (lambda: jh.Losses(eddy=1e12), ValueError, "Losses.eddy must lie in [0, 1e+06]"),
+        (lambda: jh.Losses(lag=-1e-3), ValueError, "Losses.lag must lie in [0, 3600]"),
         (lambda: jh.sinusoidal_flux(50.0, 100.0), ValueError, "beyond 10 T"),
         (lambda: jh.PlayJA(spread=-1.0), ValueError, "spread must lie in [0, 10]"),
         (lambda: jh.PlayJA(cells=0), ValueError, "cells must be an integer in [1, 256]"),

@@ -79,13 +79,35 @@ def test_a_fitted_problem_gives_its_model(tmp_path):
 
 
 def test_a_rate_dependent_model_keeps_its_loss_coefficients(tmp_path):
-    model = jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1, losses=jh.Losses(0.02, 0.1))
+    model = jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1, losses=jh.Losses(0.02, 0.1, 3e-5))
     jh.save_model(tmp_path / "dyn.eqx", model)
     back = jh.load_model(tmp_path / "dyn.eqx")
     assert float(back.losses.eddy) == 0.02 and float(back.losses.excess) == 0.1
-    assert jh.load_model(tmp_path / "dyn.eqx").losses is not None
+    assert float(back.losses.lag) == 3e-5
     jh.save_model(tmp_path / "static.eqx", jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1))
     assert jh.load_model(tmp_path / "static.eqx").losses is None
+
+
+def test_a_model_file_from_before_the_lag_loads_with_no_lag(tmp_path):
+    """A file written when Losses held eddy and excess only (its header without
+    loss_names) loads, its lag 0."""
+    import io
+    import json
+
+    import equinox as eqx
+
+    model = jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1, losses=jh.Losses(0.02, 0.1))
+    jh.save_model(tmp_path / "new.eqx", model)
+    header = json.loads((tmp_path / "new.eqx").read_bytes().split(b"\n", 1)[0])
+    del header["loss_names"]
+    old = eqx.tree_at(lambda m: m.losses, model, (model.losses.eddy, model.losses.excess))
+    buf = io.BytesIO()
+    buf.write(json.dumps(header).encode() + b"\n")
+    eqx.tree_serialise_leaves(buf, old)
+    (tmp_path / "old.eqx").write_bytes(buf.getvalue())
+    back = jh.load_model(tmp_path / "old.eqx")
+    assert (float(back.losses.eddy), float(back.losses.excess), float(back.losses.lag)) == \
+        (0.02, 0.1, 0.0)
 
 
 def test_a_condition_law_is_saved_and_evaluated_at_a_new_amplitude(tmp_path):

@@ -57,13 +57,23 @@ def _flux_rate(loops, out, actuator, source) -> float:
     return max(rates)
 
 
+def _field_rate(loops, actuator, source) -> float:
+    """The applied field's rate (A/(m·s)) of the loops: the 95th percentile of |dH/dt|
+    (a digitized record's noise does not set it)."""
+    import numpy as np
+
+    return max(float(np.percentile(np.abs(np.diff(loop_field(lp, actuator, source))
+                                          / np.diff(lp.t)), 95)) for lp in loops)
+
+
 def resolve_bounds(spec: dict, given, loops):
     """The full box of a fit and a line saying where it came from: ``(Bounds, {name:
     (lower, upper)} of the loss coefficients in ``spec["losses"]`` and the form's own
     parameters, text)``. For M or B data the box derived from the ``loops``, else the
     paper's Table 1 box; a bounds file's entries replace the defaults for the parameters
-    it names; a preset is used as is. The loss coefficients' box: [0, 2·Hmax/max|dB/dt|]
-    and [0, 2·Hmax/max|dB/dt|^(1/2)] (a loss field up to twice the applied field's
+    it names; a preset is used as is. The loss coefficients' box: [0, 2·Hmax/max|dB/dt|],
+    [0, 2·Hmax/max|dB/dt|^(1/2)] and, for the lag, [0, 2·Hmax/|dH/dt|] (|dH/dt| the
+    applied field's 95th percentile) (a loss field up to twice the applied field's
     amplitude; it needs times and M or B data, or a bounds file naming them); a form's
     own parameters: its default box."""
     import numpy as np
@@ -90,6 +100,9 @@ def resolve_bounds(spec: dict, given, loops):
                            f"(--bounds with \"{n}\": [lower, upper], SI).")
         Hmax = max(float(np.max(np.abs(loop_field(lp, actuator, spec["data"]))))
                    for lp in loops)
+        if n == "lag":
+            extra[n] = (0.0, 2.0 * Hmax / _field_rate(loops, actuator, spec["data"]))
+            continue
         rate = _flux_rate(loops, out, actuator, spec["data"])
         extra[n] = (0.0, 2.0 * Hmax / (rate if n == "eddy" else np.sqrt(rate)))
     own = list(getattr(form, "own_parameters", {}))

@@ -31,7 +31,7 @@ def add_parser(sub) -> None:
     parser.add_argument("--actuator",
                         help="actuator1 (default), actuator2 or a JSON file {Ar, lr, n, Hb}")
     parser.add_argument("--model", help="a saved model (identify --save-model) instead of "
-                        "--params/--actuator/--variant/--substeps/--eddy/--excess; a "
+                        "--params/--actuator/--variant/--substeps/--eddy/--excess/--lag; a "
                         "condition law (identify --vary) is evaluated at --frequency, "
                         "--temperature and the drive's amplitude")
     parser.add_argument("--temperature", type=FINITE, help="with --model: the temperature, "
@@ -49,6 +49,9 @@ def add_parser(sub) -> None:
                         "A/m per T/s (the rate-dependent model; default 0)")
     parser.add_argument("--excess", type=NON_NEGATIVE, help="excess loss coefficient, A/m "
                         "per √(T/s) (the rate-dependent model; default 0)")
+    parser.add_argument("--lag", type=NON_NEGATIVE, help="relaxation time of the hysteresis "
+                        "field, s: H_lag = lag·dH_hyst/dt (the rate-dependent model; "
+                        "default 0)")
     parser.add_argument("--drive", help="CSV/TSV with t and H (or I) columns")
     parser.add_argument("--columns", help="column names for a file without a header")
     parser.add_argument("--run-in-periods", type=COUNT, help="with --drive: copies of the "
@@ -170,9 +173,9 @@ def _losses(args):
     """The loss coefficients given (`jaxhyst.Losses`), or None for the static model."""
     import jaxhyst as jh
 
-    if args.eddy is None and args.excess is None:
+    if args.eddy is None and args.excess is None and args.lag is None:
         return None
-    return jh.Losses(eddy=args.eddy or 0.0, excess=args.excess or 0.0)
+    return jh.Losses(eddy=args.eddy or 0.0, excess=args.excess or 0.0, lag=args.lag or 0.0)
 
 
 def _model(args, record):
@@ -185,7 +188,7 @@ def _model(args, record):
         return (parameters_arg(args.params or args.preset), None,
                 variant_from_name(args.variant or "energy"),
                 args.substeps or DEFAULT_SUBSTEPS, _losses(args))
-    given = [o for o in ("params", "actuator", "variant", "substeps", "eddy", "excess")
+    given = [o for o in ("params", "actuator", "variant", "substeps", "eddy", "excess", "lag")
              if getattr(args, o) is not None]
     if given:
         raise CLIError(f"--model holds the parameters, actuator, form, substeps and losses; "

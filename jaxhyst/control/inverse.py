@@ -3,8 +3,8 @@ by running each stage of the model backwards (`jaxhyst.model.inverse`).
 
 displacement y(t) → magnetostriction λ(t) (structure inverted) → magnetization M(t) on
 the bias's branch (magnetostriction inverted) → field H(t) (Jiles–Atherton driven by M,
-then the loss field of a conducting core, H_eddy + H_exc at the rate of B = μ0·(H_hyst +
-M), added) → input u = (H − Hb)/gain.
+then the loss field of a conducting core, H_eddy + H_exc + H_lag at the rates of B =
+μ0·(H_hyst + M) and H_hyst, added) → input u = (H − Hb)/gain.
 
 Where the reference asks for more than the actuator reaches, λ is held inside the
 reachable range first (the unreachable samples are reported by `jaxhyst.control.reach`).
@@ -79,6 +79,7 @@ def inverse_input(tracking: Tracking, reference: Reference, reach: Reach) -> Inv
     if model.losses is not None:
         B = MU0 * (H + M)
         H = H + np.asarray(dynamic_field(jnp.asarray(_rate(B, t, dt, reference.periodic)),
-                                         model.losses))
+                                         model.losses,
+                                         jnp.asarray(_rate(H, t, dt, reference.periodic))))
     u = (H - float(model.actuator.Hb)) / tracking.gain
     return InverseInput(u=u, lam=lam, M=M)

@@ -9,14 +9,14 @@ pieces, the δM switch located), and B = μ0·(h + M). The field balance
 H = h + H_eddy + H_exc is imposed at the interval's midpoint with the interval's mean
 rate of B (the implicit midpoint rule, second order in the sample step):
 
-    (H_n + H_{n+1})/2 − (h_n + h_{n+1})/2 = k_e·r + k_x·sign(r)·|r|^(1/2),
-    r = (B_{n+1} − B_n)/(t_{n+1} − t_n).
+    (H_n + H_{n+1})/2 − (h_n + h_{n+1})/2 = k_e·r + k_x·sign(r)·|r|^(1/2) + τ·ṙ_h,
+    r = (B_{n+1} − B_n)/(t_{n+1} − t_n),   ṙ_h = (h_{n+1} − h_n)/(t_{n+1} − t_n).
 
 The left side falls and the right side rises with h_{n+1}, so the root is unique and
 lies between h_n and H_n + H_{n+1} − h_n. It is found from the closed-form root of the
 linearized equation (the start slope for dB/dh) by a fixed number of Newton steps
 (`NEWTON_STEPS`), each with dB/dh from forward mode through the interval map, kept inside
-that bracket. With k_e = k_x = 0 the first guess is h_{n+1} = H_{n+1}: the static model,
+that bracket. With k_e = k_x = τ = 0 the first guess is h_{n+1} = H_{n+1}: the static model,
 to round-off. Within an interval h is taken linear in time for the structural forcing.
 
 **The time loop** is the skeleton of `jaxhyst.model.timeloop`, with `RateDependentPath`
@@ -48,7 +48,7 @@ def _balance(inner, S, batched, p, losses, H0, H1, dt, state, h0, h1):
     M0 = inner.magnetization(state)
     M1 = inner.end_magnetization(p, h0, h1, state, S, batched)
     rate = (MU0 * (h1 + M1) - MU0 * (h0 + M0)) / dt
-    return 0.5 * (H0 + H1) - 0.5 * (h0 + h1) - dynamic_field(rate, losses)
+    return 0.5 * (H0 + H1) - 0.5 * (h0 + h1) - dynamic_field(rate, losses, (h1 - h0) / dt)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
@@ -61,7 +61,7 @@ def _end_field(inner, S, batched, p, losses, H0, H1, dt, state, h0):
     slope = jax.vmap(inner.slope) if batched else inner.slope
     chi = slope(p, h0, state, jnp.where(R >= 0, 1.0, -1.0))
     c = MU0 * (1.0 + chi) / dt
-    a = 0.5 + losses.eddy * c
+    a = 0.5 + losses.eddy * c + losses.lag / dt
     b = losses.excess * jnp.sqrt(jnp.maximum(c, 0.0))
     moving = R != 0
     absR = jnp.where(moving, jnp.abs(R), 1.0)  # (no 0/0 in values or derivatives)

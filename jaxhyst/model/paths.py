@@ -118,7 +118,7 @@ def model_parameters(values: dict, form, losses: bool):
     `Parameters`, `Losses` where ``losses``, ``form`` with its own parameters set."""
     members = [Parameters(**{n: values[n] for n in NAMES})]
     if losses:
-        members.append(Losses(values["eddy"], values["excess"]))
+        members.append(Losses(*[values[n] for n in LOSS_NAMES]))
     own = list(own_parameters(form))
     if own and own[0] in values:
         members.append(eqx.tree_at(lambda f: [getattr(f, n) for n in own], form,
