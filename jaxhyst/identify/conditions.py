@@ -31,7 +31,7 @@ from ..model.laws import (  # (the law sits below the problems and Model; re-exp
     Conditions,
     ConditionWarning,
 )
-from ..model.losses import LOSS_NAMES
+from ..model.losses import LOSS_LIMITS, LOSS_NAMES
 from ..model.paths import OWN_NAMES, model_parameters, own_parameters
 from ..params import NAMES, Bounds
 from .flux import FluxProblem
@@ -195,7 +195,7 @@ def per_record_space(bounds: Bounds, n_records: int, losses: Mapping | None = No
     records problem is built with before a `ConditionProblem` replaces its parameters
     (with ``losses``: the loss coefficients too; with a ``form`` that has parameters of
     its own, those too)."""
-    box = None if losses is None else {n: (0.0, 1e6) for n in LOSS_NAMES}
+    box = None if losses is None else {n: (0.0, LOSS_LIMITS[n]) for n in LOSS_NAMES}
     names = [*NAMES, *(LOSS_NAMES if losses is not None else ()),
              *(own_parameters(form) if form is not None else ())]
     return ParameterSpace.for_model(bounds, losses=box, form=form, n_loops=n_records,

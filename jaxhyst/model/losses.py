@@ -52,6 +52,8 @@ LOSS_UNITS = {"eddy": "A*s/(m*T)", "excess": "A*s^0.5/(m*T^0.5)", "lag": "s"}
 MAX_COEFFICIENT = 1e6
 #: The largest relaxation time accepted (s): a lag of an hour is a unit mistake.
 MAX_LAG = 3600.0
+#: The largest value of each coefficient (SI).
+LOSS_LIMITS = {"eddy": MAX_COEFFICIENT, "excess": MAX_COEFFICIENT, "lag": MAX_LAG}
 
 
 class Losses(eqx.Module):
@@ -75,7 +77,7 @@ class Losses(eqx.Module):
         for name, value in (("eddy", eddy), ("excess", excess), ("lag", lag)):
             if is_concrete(value):
                 v = np.asarray(value, dtype=np.float64)
-                top = MAX_LAG if name == "lag" else MAX_COEFFICIENT
+                top = LOSS_LIMITS[name]
                 if not (np.all(np.isfinite(v)) and np.all(v >= 0) and np.all(v <= top)):
                     hint = ("an hour is a unit mistake" if name == "lag" else
                             "a 0.1 m copper lamination's eddy coefficient is 5e4")
