@@ -163,7 +163,7 @@ class ParameterSpace(eqx.Module):
                     ) -> ParameterSpace:
         """A space over the pair ``(Parameters, Losses)`` of the rate-dependent model: the
         ten parameters as ``ParameterSpace(bounds, fixed)``, and the loss coefficients
-        ``eddy`` and ``excess`` (`jaxhyst.Losses`) in the box ``losses``
+        ``eddy``, ``excess`` and ``lag`` (`jaxhyst.Losses`) in the box ``losses``
         ``{name: (lower, upper)}`` (SI; a coefficient left out is held at 0). ``fixed``
         may name them too. (`for_model` with ``losses``.)"""
         return cls.for_model(bounds, fixed=fixed, losses=losses)

@@ -9,8 +9,8 @@ pieces, the δM switch located), and B = μ0·(h + M). The field balance
 H = h + H_eddy + H_exc is imposed at the interval's midpoint with the interval's mean
 rate of B (the implicit midpoint rule, second order in the sample step):
 
-    (H_n + H_{n+1})/2 − (h_n + h_{n+1})/2 = k_e·r + k_x·sign(r)·|r|^(1/2) + τ·ṙ_h,
-    r = (B_{n+1} − B_n)/(t_{n+1} − t_n),   ṙ_h = (h_{n+1} − h_n)/(t_{n+1} − t_n).
+    (H_n + H_{n+1})/2 − (h_n + h_{n+1})/2 = k_e·r + k_x·sign(r)·|r|^(1/2) + τ·r_h,
+    r = (B_{n+1} − B_n)/(t_{n+1} − t_n),   r_h = (h_{n+1} − h_n)/(t_{n+1} − t_n).
 
 The left side falls and the right side rises with h_{n+1}, so the root is unique and
 lies between h_n and H_n + H_{n+1} − h_n. It is found from the closed-form root of the
