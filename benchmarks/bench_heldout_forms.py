@@ -81,55 +81,60 @@ def amplitude_family(path, seed=0):
     _write(path, rows, ["loop", "H_A_per_m", "B_T"])
 
 
-def frequency_family(path, seed=1):
-    """Four loops at 50, 100, 200 and 400 Hz of one field amplitude (120 A/m), made by
-    the play model with losses (k_e = 0.02 A/m per T/s, k_x = 0.3): t, H, B sampled
-    200 times per period, with a frequency column."""
-    import jaxhyst as jh
-    from jaxhyst.identify.joint import NO_ACTUATOR
+#: The material of the frequency families (a soft ferrite-like loop).
+FAMILY_PARAMS = dict(Ms=3.8e5, lambda_s=0.0, a=30.0, k=25.0, alpha=3e-5, c=0.4, E=1.0,
+                     Kz=1.0, Mz=1.0, Cz=0.0)
 
-    p = jh.Parameters(Ms=3.8e5, lambda_s=0.0, a=30.0, k=25.0, alpha=3e-5, c=0.4, E=1.0,
-                      Kz=1.0, Mz=1.0, Cz=0.0)
+
+def _frequency_loops(path, seed, flux_density):
+    """Four loops at 50, 100, 200 and 400 Hz of one field amplitude (120 A/m), 200
+    samples per period, B from ``flux_density(params, drive, f)`` (the observed period)
+    plus 0.2 % noise: t, H, B with a frequency column."""
+    import jaxhyst as jh
+
+    p = jh.Parameters(**FAMILY_PARAMS)
     rng = np.random.default_rng(seed)
     rows = []
     for i, f in enumerate((50.0, 100.0, 200.0, 400.0)):
         drive = jh.sinusoidal_field(f, 120.0, 0.0, samples_per_period=200)
-        sim = jh.simulate(p, NO_ACTUATOR, drive, jh.PlayJA(spread=0.7, cells=16),
-                          losses=jh.Losses(0.02, 0.3), substeps=1)
+        B = flux_density(p, drive, f)
+        B = B + 0.002 * np.max(np.abs(B)) * rng.standard_normal(B.shape)
         t = np.asarray(drive.observed(drive.t))
         H = np.asarray(drive.observed(drive.H))
-        B = MU0 * np.asarray(drive.observed(sim.H_hyst + sim.M))
-        B = B + 0.002 * np.max(np.abs(B)) * rng.standard_normal(B.shape)
         rows += [(i, f, tt - t[0], h, b) for tt, h, b in zip(t, H, B, strict=True)]
     _write(path, rows, ["loop", "frequency", "t_s", "H_A_per_m", "B_T"])
 
 
-def relaxation_family(path, seed=2, tau=1.5e-4):
-    """Four loops at 50, 100, 200 and 400 Hz of one field amplitude (120 A/m): the
-    Preisach model's periodic magnetisation M_s(t) filtered by τ·dM/dt = M_s − M
-    (each harmonic n of the fundamental f divided by 1 + j·2πnf·τ), B = μ0·(H + M);
-    t, H, B sampled 200 times per period, with a frequency column."""
+def frequency_family(path, seed=1):
+    """The frequency loops (`_frequency_loops`) made by the play model with losses
+    (k_e = 0.02 A/m per T/s, k_x = 0.3)."""
     import jaxhyst as jh
     from jaxhyst.identify.joint import NO_ACTUATOR
 
-    p = jh.Parameters(Ms=3.8e5, lambda_s=0.0, a=30.0, k=25.0, alpha=3e-5, c=0.4, E=1.0,
-                      Kz=1.0, Mz=1.0, Cz=0.0)
-    rng = np.random.default_rng(seed)
-    rows = []
-    for i, f in enumerate((50.0, 100.0, 200.0, 400.0)):
-        drive = jh.sinusoidal_field(f, 120.0, 0.0, samples_per_period=200)
+    def flux_density(p, drive, f):
+        sim = jh.simulate(p, NO_ACTUATOR, drive, jh.PlayJA(spread=0.7, cells=16),
+                          losses=jh.Losses(0.02, 0.3), substeps=1)
+        return MU0 * np.asarray(drive.observed(sim.H_hyst + sim.M))
+
+    _frequency_loops(path, seed, flux_density)
+
+
+def relaxation_family(path, seed=2, tau=1.5e-4):
+    """The frequency loops (`_frequency_loops`) of the Preisach model's periodic
+    magnetisation M_s(t) filtered by τ·dM/dt = M_s − M (each harmonic n of the
+    fundamental f divided by 1 + j·2πnf·τ), B = μ0·(H + M)."""
+    import jaxhyst as jh
+    from jaxhyst.identify.joint import NO_ACTUATOR
+
+    def flux_density(p, drive, f):
         sim = jh.simulate(p, NO_ACTUATOR, drive, jh.PreisachJA(spread=0.7, cells=16),
                           substeps=1)
         Ms = np.asarray(drive.observed(sim.M))[:-1]  # (one period, without its end)
         n = np.fft.rfftfreq(Ms.shape[0], d=1.0 / Ms.shape[0])
         M = np.fft.irfft(np.fft.rfft(Ms) / (1.0 + 2j * np.pi * n * f * tau), Ms.shape[0])
-        M = np.append(M, M[0])
-        t = np.asarray(drive.observed(drive.t))
-        H = np.asarray(drive.observed(drive.H))
-        B = MU0 * (H + M)
-        B = B + 0.002 * np.max(np.abs(B)) * rng.standard_normal(B.shape)
-        rows += [(i, f, tt - t[0], h, b) for tt, h, b in zip(t, H, B, strict=True)]
-    _write(path, rows, ["loop", "frequency", "t_s", "H_A_per_m", "B_T"])
+        return MU0 * (np.asarray(drive.observed(drive.H)) + np.append(M, M[0]))
+
+    _frequency_loops(path, seed, flux_density)
 
 
 def run_cli(path, forms, out, extra=()):

@@ -241,8 +241,9 @@ def run(args) -> int:
     if method not in HYBRID and (args.checkpoint or args.resume):
         raise CLIError(f"--checkpoint/--resume apply to the hybrid GAs; --method {method} is a "
                        "local solve (not checkpointed: rerun it).")
-    if args.progress and spec.get("joint") and rate_note(spec, loops):
-        note("identify", rate_note(spec, loops))
+    rate = rate_note(spec, loops) if args.progress and spec.get("joint") else None
+    if rate:
+        note("identify", rate)
     held = curves = None
     if args.leave_one_out:  # (first: with several forms, it chooses the one to fit)
         held = leave_one_out(args, spec, given, loops, method, forms)
