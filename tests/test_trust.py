@@ -174,6 +174,7 @@ def test_the_profile_check_fires_on_a_curved_case_and_not_on_a_straight_one(nois
                                   jax.random.PRNGKey(3))
     bent = jh.solve(curved, jh.TABLE3[2000], report=False)
     from jaxhyst.analysis import profile_intervals
+    from jaxhyst.analysis.intervals import critical_value
     from jaxhyst.identify.space import u_from_z
 
     batches, held_costs = [], profile_intervals._held_costs
@@ -181,7 +182,7 @@ def test_the_profile_check_fires_on_a_curved_case_and_not_on_a_straight_one(nois
     def recorded(problem, solver, lowers, uppers, z0s, max_steps):
         costs, zs = held_costs(problem, solver, lowers, uppers, z0s, max_steps)
         batches.append((np.asarray(lowers), np.asarray(uppers), np.asarray(u_from_z(z0s)),
-                        np.asarray(u_from_z(zs))))
+                        np.asarray(u_from_z(zs)), np.asarray(costs)))
         return costs, zs
 
     monkeypatch.setattr(profile_intervals, "_held_costs", recorded)
@@ -189,8 +190,8 @@ def test_the_profile_check_fires_on_a_curved_case_and_not_on_a_straight_one(nois
     # a later batch starts each re-fit where that end's last ended (an end held at the
     # same value: exactly there)
     assert len(batches) >= 2
-    for (lo0, _, _, u_end), (lo1, hi1, u_start, _) in zip(batches, batches[1:],
-                                                          strict=False):
+    for (lo0, _, _, u_end, _), (lo1, hi1, u_start, _, _) in zip(batches, batches[1:],
+                                                                strict=False):
         same = np.all(lo0 == lo1, axis=1)  # (the same held value)
         assert same.any()
         free = lo1[same] < hi1[same]  # (the held coordinate is pinned, wherever its z)
@@ -205,6 +206,16 @@ def test_the_profile_check_fires_on_a_curved_case_and_not_on_a_straight_one(nois
         assert lower[i] <= lo < rep.values[i] < hi <= upper[i]
         linear_half = 1.96 * rep.std_errors[name]
         assert abs((hi - rep.values[i]) - (rep.values[i] - lo)) > 0.1 * linear_half
+        # each moved end is where a re-fit found the profile within 20 % of its threshold
+        # (σ declared: Δχ² is the cost's rise; near the box the bound-aware threshold),
+        # not an untested step of the search
+        cost0 = float(curved.cost(curved.space.z_from_params(bent.params)))
+        for end in (lo, hi):
+            c = critical_value(min(end - lower[i], upper[i] - end) / rep.std_errors[name])
+            found = [(cost - cost0) / c for lows, _, _, _, cs in batches
+                     for row, cost in zip(lows, cs, strict=True)
+                     if np.isclose(row[i], end, rtol=1e-12)]
+            assert found and 0.8 <= found[-1] <= 1.2, (name, end, found)
     # a product keeps its sign: a product of positive parameters never crosses 0, α̃·Ms
     # (α̃ < 0 in its box) never turns positive
     for c in rep.combinations:

@@ -10,9 +10,11 @@ threshold c (3.84, or the bound-aware one), the linear end stands — the quadra
 describes the profile. Elsewhere the end is moved to where the profile crosses c:
 successive batches of re-fits, each end's next value from the crossing of √Δχ², which is
 linear in the parameter where the cost is quadratic, bracketed once the crossing is
-passed; each re-fit starts from that end's previous one, moved along the linearised path
-by the change of the held value (so a batch's re-fits continue where the last ended, and
-an end already settled costs a few steps). Quantities of one sign by construction (a box
+passed (false position with the Illinois rule: the end kept twice running has its value
+halved, so that a strongly curved profile does not stall the bracket at one side); each
+re-fit starts from that end's previous one, moved along the linearised path by the change
+of the held value (so a batch's re-fits continue where the last ended, and an end
+already settled costs a few steps). Quantities of one sign by construction (a box
 that does not reach 0) are profiled in ln|θ|, so that their intervals never cross 0; every
 end stays inside the box — an end the profile does not reach inside it is the box's, and
 the report says the data do not bound the parameter there.
@@ -117,7 +119,10 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
     s_now = np.array(s_now)
     below = np.zeros(len(ends))  # the largest |s| known under c (0: the optimum)
     above = np.full(len(ends), np.inf)  # the smallest |s| known over c
-    d_below, d_above = np.zeros(len(ends)), np.full(len(ends), np.inf)
+    # √Δχ² − √c at those two (f_below < 0 < f_above), the retained one's halved when the
+    # same side moves twice running (Illinois: regula falsi would stall against it)
+    f_below, f_above = np.full(len(ends), np.nan), np.full(len(ends), np.nan)
+    moved = np.zeros(len(ends), int)  # the side that moved last: −1 below, +1 above
     done = np.zeros(len(ends), bool)
     ratio_first = np.full(len(ends), np.nan)
     unbounded = {}
@@ -171,10 +176,17 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
             if abs(d / c - 1.0) <= TOLERANCE:
                 done[k] = True
                 continue
+            f = np.sqrt(d) - np.sqrt(c)
             if d < c:
-                below[k], d_below[k] = s, d
+                below[k], f_below[k] = s, f
+                if moved[k] < 0:
+                    f_above[k] *= 0.5
+                moved[k] = -1
             else:
-                above[k], d_above[k] = s, d
+                above[k], f_above[k] = s, f
+                if moved[k] > 0:
+                    f_below[k] *= 0.5
+                moved[k] = 1
             at_box = values[k] in (lower[i], upper[i])
             if at_box and d < c:  # the data do not bound it inside the box
                 done[k] = True
@@ -182,8 +194,9 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
                 continue
             # the next value: where √Δχ² (linear in s for a quadratic cost) reaches √c
             if np.isfinite(above[k]):
-                r0, r1 = np.sqrt(d_below[k]), np.sqrt(d_above[k])
-                t = (np.sqrt(c) - r0) / max(r1 - r0, 1e-300)
+                f0 = f_below[k] if np.isfinite(f_below[k]) else -np.sqrt(c)  # (0: optimum)
+                # (a re-fit that failed beyond: the bracket halved)
+                t = -f0 / max(f_above[k] - f0, 1e-300) if np.isfinite(f_above[k]) else 0.5
                 s_next = below[k] + t * (above[k] - below[k])
             else:
                 s_next = s * min(np.sqrt(c / max(d, 1e-12)), 4.0)
