@@ -349,6 +349,26 @@ def test_ctrl_c_stops_at_the_generation_keeps_best_and_resumes_exactly(
     assert [h["generation"] for h in resumed.extra["history"]] == list(range(1, 11))
 
 
+def test_hybrids_share_the_generations_that_do_not_run_their_local_search(problem, caplog):
+    """GATR1's BCGA generation serves GALM2 and GATR2, and GALM2's FCGA generation (no
+    local search inside: the ``after`` placement) serves GATR2: each compiles only what
+    is its own."""
+    import logging
+
+    def compiled(method):
+        caplog.clear()
+        with jax.log_compiles(), caplog.at_level(logging.WARNING):
+            jh.run_hybrid(problem, method, seed=1, settings=TINY, report=False)
+        return " ".join(r.getMessage()[:80] for r in caplog.records
+                        if r.getMessage().startswith("Compiling"))
+
+    compiled("GATR1")
+    second = compiled("GALM2")
+    assert "_bcga_generation" not in second
+    third = compiled("GATR2")
+    assert "_bcga_generation" not in third and "_fcga_generation" not in third
+
+
 def test_new_generation_counts_step_limits_and_probabilities_compile_nothing(
         problem, caplog):
     import logging

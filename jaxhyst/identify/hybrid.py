@@ -186,7 +186,19 @@ class HybridGA(eqx.Module):
     def step(self, problem: AbstractProblem, state: GAState) -> tuple[GAState, dict]:
         """One generation (BCGA while i ≤ T1, then FCGA): (new state, record)."""
         bcga = int(state.generation) < int(self.T1)
-        return (_bcga_generation if bcga else _fcga_generation)(problem, self, state)
+        generation = _bcga_generation if bcga else _fcga_generation
+        return generation(problem, self._as_generation_sees_it(bcga), state)
+
+    def _as_generation_sees_it(self, bcga: bool) -> HybridGA:
+        """This method with what its generation does not use made canonical: the local
+        search only where an FCGA generation runs it (``inside``), so that hybrids that
+        differ only there (GATR1 … GALM2 in their BCGA generations, GA, GATR2 and GALM2
+        in their FCGA ones) share the compiled generations."""
+        if not bcga and self.local_solver is not None and self.placement == "inside" \
+                and self.local_steps:
+            return self
+        return HybridGA(None, "inside", "GA", **{**self.settings(), "local_steps": 0,
+                                                 "carry_over": True})
 
     def terminate(self, state: GAState) -> bool:
         """Whether every generation is done."""
