@@ -201,3 +201,31 @@ def test_its_parameters_are_recovered_from_its_own_loops(form):
         assert abs(float(getattr(p, name)[0]) / want - 1) < 1e-5, name
     for name, want in own.items():
         assert abs(float(getattr(f, name)[0]) / want - 1) < 1e-5, name
+
+
+@pytest.mark.parametrize("form", FORMS, ids=IDS)
+def test_a_fit_of_magnetic_loops_skips_the_substep_error_it_cannot_have(form):
+    """The cells are exact along each interval: the flux density at the samples is the
+    same at 1 and 2 substeps (to round-off), so `sampling_error` does not estimate it
+    (None) on a drive coarse enough that it would for the Jiles–Atherton form."""
+    from jaxhyst.identify.signal import _predictions, sampling_error
+
+    d = jh.sinusoidal_field(10.0, 150.0, 0.0, samples_per_period=24)  # (coarse: 8 % steps)
+    sim = jh.simulate(SOFT, NO_ACTUATOR, d, form, substeps=1)
+    data = np.asarray(d.observed(MU0 * (sim.H + sim.M)))
+    bounds = jh.Bounds(SOFT.replace(a=5.0, k=5.0), SOFT.replace(a=100.0, k=100.0))
+    problems = {}
+    for name, variant, S in (("cells", form, 1), ("finer", form, 2),
+                             ("classic", jh.ClassicJA(), 1)):
+        space = jh.ParameterSpace.for_model(bounds, form=variant, n_loops=1,
+                                            fixed=fix_structural(bounds))
+        problems[name] = (jh.JointProblem([data], [d], NO_ACTUATOR, space,
+                                          output="flux_density", variant=variant,
+                                          substeps=S), space)
+    problem, space = problems["cells"]
+    params = space.params_from_u(space.u_from_params((SOFT, form)))
+    coarse, fine = _predictions(problem, problems["finer"][0], params)
+    assert np.max(np.abs(np.asarray(coarse) - np.asarray(fine))) <= 1e-12 * np.max(np.abs(data))
+    assert sampling_error(problem, params) is None
+    problem, space = problems["classic"]
+    assert sampling_error(problem, space.params_from_u(space.u_from_params(SOFT))) > 0

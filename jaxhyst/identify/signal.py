@@ -214,11 +214,17 @@ def sampling_error(problem, params) -> float | None:
     """The model's error at ``problem``'s sampling and substeps, relative to the size of
     its output, at ``params`` (`jaxhyst.model.accuracy`: the same prediction at twice the
     substeps); None where the drive is fine enough that it cannot matter (its field — or
-    flux density — moves at most 1 % of its range per substep), or for a problem without
-    a drive and substeps of this kind."""
+    flux density — moves at most 1 % of its range per substep), where the form's
+    magnetization does not depend on the substeps (``exact_in_substeps``: the pinning
+    cells) and only magnetic outputs are fitted, or for a problem without a drive and
+    substeps of this kind."""
     drive, substeps = getattr(problem, "drive", None), getattr(problem, "substeps", None)
     signal = getattr(drive, "H", getattr(drive, "B", None))
     if signal is None or not isinstance(substeps, int):
+        return None
+    outputs = getattr(problem, "outputs", None) or (getattr(problem, "output", None),)
+    if getattr(getattr(problem, "variant", None), "exact_in_substeps", False) and \
+            all(o is not None and output_kind(o).magnetic_only for o in outputs):
         return None
     rows = np.atleast_2d(np.asarray(signal))[:, drive.run_in:]
     if not any(may_be_coarse(row, substeps) for row in rows):

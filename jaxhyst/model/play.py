@@ -292,6 +292,9 @@ class AbstractPlayForm(eqx.Module):
 
     #: Its own parameters (fields of the form), with their units.
     own_parameters: ClassVar[dict] = {"spread": "1"}
+    #: The magnetization at the samples does not depend on the substeps (the cells are
+    #: exact along each interval; the substeps only place points for the structure).
+    exact_in_substeps: ClassVar[bool] = True
 
     spread: eqx.AbstractVar[Real]  # s: the log-normal width of the pinning fields (1)
     cells: eqx.AbstractVar[int]  # N: the number of pinning cells (static)
