@@ -351,8 +351,8 @@ def test_ctrl_c_stops_at_the_generation_keeps_best_and_resumes_exactly(
 
 def test_hybrids_share_the_generations_that_do_not_run_their_local_search(problem, caplog):
     """GATR1's BCGA generation serves GALM2 and GATR2, and GALM2's FCGA generation (no
-    local search inside: the ``after`` placement) serves GATR2: each compiles only what
-    is its own."""
+    local search inside: the ``after`` placement) serves GATR2; a renamed GATR1 compiles
+    neither: each compiles only what is its own."""
     import logging
 
     def compiled(method):
@@ -367,6 +367,8 @@ def test_hybrids_share_the_generations_that_do_not_run_their_local_search(proble
     assert "_bcga_generation" not in second
     third = compiled("GATR2")
     assert "_bcga_generation" not in third and "_fcga_generation" not in third
+    renamed = compiled(jh.HybridGA("tra", "inside", "my GATR1", **TINY))
+    assert "_bcga_generation" not in renamed and "_fcga_generation" not in renamed
 
 
 def test_new_generation_counts_step_limits_and_probabilities_compile_nothing(

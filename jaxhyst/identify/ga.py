@@ -14,6 +14,7 @@ Choices (the paper is silent or ambiguous; see docs/identification.md):
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -149,3 +150,20 @@ def fcga_offspring(key, U, fitness, generation, total_generations, pc, pm, beta=
         keys, rest, generation, total_generations, pm, beta
     )
     return jnp.concatenate([parents[:elites], rest], axis=0)
+
+
+class GAState(eqx.Module):
+    """Everything a generation changes; a checkpoint is this state serialized."""
+
+    key: jax.Array  # PRNG key (uint32, (2,))
+    genes: jax.Array  # BCGA population, (q1, n, bits) uint8
+    U: jax.Array  # FCGA population in box coordinates, (q2, n)
+    generation: jax.Array  # generations completed
+    best_u: jax.Array  # (n,)
+    best_cost: jax.Array
+    evaluations: jax.Array
+    failures: jax.Array
+    local_steps: jax.Array
+    step_size: jax.Array  # the local search's damping (1/h) or radius, carried over
+    last_local_u: jax.Array  # (n,) where the last local search converged
+    has_last_local: jax.Array  # bool

@@ -17,10 +17,11 @@ descent with a search — GATR1 and GALM1 differ in one field:
 numbers a generation only reads (T1, T2, pc, pm, β, c1) and the step limits of the final
 solves (T3, check_steps) are arrays, so that new values compile nothing. Its methods are
 ``init`` (the first `GAState`), ``step`` (one generation: a pure function state →
-(state, record), compiled once; population evaluation in one vmapped batch, sharded
-over devices with no communication when there are several, the local search, selection
-and reproduction all inside), ``terminate`` and ``postprocess`` (the ``after``
-placement's solve and the convergence check, stepped by the one driver).
+(state, record), compiled once, shared by hybrids equal in what it uses; population
+evaluation in one vmapped batch, sharded over devices with no communication when there
+are several, the local search, selection and reproduction all inside), ``terminate`` and
+``postprocess`` (the ``after`` placement's solve and the convergence check, stepped by
+the one driver).
 `jaxhyst.identify.run.run_hybrid` drives it.
 
 Choices (documented in docs/identification.md):
@@ -36,9 +37,8 @@ Choices (documented in docs/identification.md):
   run whose best point is not at an optimum the check can reach says
   ``max_steps_reached``. Where the check lowered the cost, the result is the lower point
   and ``extra["convergence_check"]`` says by how much. LM rather than the hybrid's own
-  solver, because the paper's TRA rejects every step at an optimum with non-zero
-  residuals (its ratio test then compares round-off) and would never report
-  convergence there.
+  solver: the paper's TRA rejects every step at an optimum with non-zero residuals (its
+  ratio test then compares round-off) and would never report convergence there.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ from .._interrupt import stop_requested
 from ..names import HYBRID_NAMES
 from ..sharding import map_sharded, shardable, vmap_blocked
 from ._stepped import SteppedSolve, solve_traced
-from .ga import bcga_offspring, decode, fcga_offspring
+from .ga import GAState, bcga_offspring, decode, fcga_offspring
 from .problem import AbstractProblem
 from .result import RESULTS, member, outcome_name
 from .solvers import initial_step_size, make_solver, solver_name, with_initial_step_size
@@ -186,19 +186,16 @@ class HybridGA(eqx.Module):
     def step(self, problem: AbstractProblem, state: GAState) -> tuple[GAState, dict]:
         """One generation (BCGA while i ≤ T1, then FCGA): (new state, record)."""
         bcga = int(state.generation) < int(self.T1)
-        generation = _bcga_generation if bcga else _fcga_generation
-        return generation(problem, self._as_generation_sees_it(bcga), state)
+        return (_bcga_generation if bcga else _fcga_generation)(
+            problem, self._as_generation_sees_it(bcga), state)
 
     def _as_generation_sees_it(self, bcga: bool) -> HybridGA:
-        """This method with what its generation does not use made canonical: the local
-        search only where an FCGA generation runs it (``inside``), so that hybrids that
-        differ only there (GATR1 … GALM2 in their BCGA generations, GA, GATR2 and GALM2
-        in their FCGA ones) share the compiled generations."""
+        """Itself without what its generation does not use — the name; the local search
+        but in an ``inside`` FCGA generation — so that equal generations share programs."""
         if not bcga and self.local_solver is not None and self.placement == "inside" \
                 and self.local_steps:
-            return self
-        return HybridGA(None, "inside", "GA", **{**self.settings(), "local_steps": 0,
-                                                 "carry_over": True})
+            return HybridGA(self.local_solver, "inside", "GA", **self.settings())
+        return HybridGA(None, "inside", "GA", **{**self.settings(), "local_steps": 0})
 
     def terminate(self, state: GAState) -> bool:
         """Whether every generation is done."""
@@ -249,23 +246,6 @@ HYBRIDS = {
     "GA": HybridGA(None, "after", "GA"),
 }
 assert tuple(HYBRIDS) == HYBRID_NAMES
-
-
-class GAState(eqx.Module):
-    """Everything a generation changes; a checkpoint is this state serialized."""
-
-    key: jax.Array  # PRNG key (uint32, (2,))
-    genes: jax.Array  # BCGA population, (q1, n, bits) uint8
-    U: jax.Array  # FCGA population in box coordinates, (q2, n)
-    generation: jax.Array  # generations completed
-    best_u: jax.Array  # (n,)
-    best_cost: jax.Array
-    evaluations: jax.Array
-    failures: jax.Array
-    local_steps: jax.Array
-    step_size: jax.Array  # the local search's damping (1/h) or radius, carried over
-    last_local_u: jax.Array  # (n,) where the last local search converged
-    has_last_local: jax.Array  # bool
 
 
 _z_from_u = jax.jit(z_from_u)
