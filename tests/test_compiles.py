@@ -84,9 +84,10 @@ FIXED = {"Ms": 3.5e5, "alpha": 1e-5, "lambda_s": 0.0, "E": 1.0, "Kz": 1.0, "Mz":
          "Cz": 0.0}
 
 
-def _fit(frequency, amplitude, box, loss_box):
+def _fit(frequency, amplitude, box, loss_box, sigma=None):
     """A joint fit of three B(H) loops of the rate-dependent classic form at
-    ``frequency`` (Hz) and three amplitudes around ``amplitude`` (A/m)."""
+    ``frequency`` (Hz) and three amplitudes around ``amplitude`` (A/m), the loops' noise
+    level ``sigma`` (T) declared or (None) estimated."""
     from jaxhyst.identify.joint import NO_ACTUATOR
 
     drives, data = [], []
@@ -97,16 +98,17 @@ def _fit(frequency, amplitude, box, loss_box):
         data.append(np.asarray(d.observed(MU0 * (sim.H + sim.M))))
     space = jh.ParameterSpace.for_model(box, fixed=FIXED, losses=loss_box, n_loops=3)
     problem = jh.JointProblem(data, drives, NO_ACTUATOR, space, output="flux_density",
-                              variant=jh.ClassicJA())
+                              variant=jh.ClassicJA(), sigma=sigma)
     start = space.u_from_params((SOFT.replace(a=40.0, k=15.0, c=0.4), jh.Losses(0.08, 0.3)))
     return jh.solve(problem, start, max_steps=4)
 
 
 @pytest.mark.filterwarnings("ignore::jaxhyst.identify.SamplingWarning")
-def test_a_joint_fit_compiles_nothing_for_new_data_a_new_frequency_or_a_new_box():
+def test_a_joint_fit_compiles_nothing_for_new_data_a_new_frequency_box_or_noise_level():
     box = jh.Bounds(SOFT.replace(a=10.0, k=5.0, c=0.05), SOFT.replace(a=100.0, k=60.0, c=0.9))
-    _fit(300.0, 200.0, box, {"eddy": (0.0, 0.2), "excess": (0.0, 2.0)})
+    _fit(300.0, 200.0, box, {"eddy": (0.0, 0.2), "excess": (0.0, 2.0)}, sigma=1e-3)
     wider = jh.Bounds(SOFT.replace(a=5.0, k=2.0, c=0.0), SOFT.replace(a=150.0, k=90.0, c=1.0))
     with counting() as names:
-        _fit(500.0, 150.0, wider, {"eddy": (0.0, 0.4), "excess": (0.0, 1.0)})
+        _fit(500.0, 150.0, wider, {"eddy": (0.0, 0.4), "excess": (0.0, 1.0)},
+             sigma=[2e-3, 3e-3, 2e-3])
     assert names == []

@@ -116,7 +116,7 @@ class JointProblem(AbstractProblem):
     mask: tuple = eqx.field(static=True)
     scales: jax.Array  # (L,) max|data| of each loop (data: a new data set does not recompile)
     outputs: tuple = eqx.field(static=True)
-    sigmas: tuple = eqx.field(static=True)
+    sigmas: tuple  # (per loop: None, or its σ as an array: a new value does not recompile)
     variant: eqx.Module = PAPER_VARIANT  # (a model form)
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
     shard_loops: bool = eqx.field(static=True, default=False)
@@ -158,7 +158,8 @@ class JointProblem(AbstractProblem):
         self.data = jnp.asarray(padded[mask])
         self.scales = jnp.asarray(scales, dtype=jnp.float64)
         self.outputs = outputs
-        self.sigmas = tuple(None if s is None else float(s) for s in sigmas)
+        self.sigmas = tuple(None if s is None else jnp.asarray(float(s), dtype=jnp.float64)
+                            for s in sigmas)
         self.actuator = actuator
         self.space = space
         self.variant = variant
