@@ -69,7 +69,7 @@ class FluxProblem(AbstractProblem):
     scales: jax.Array  # (L,) max|data| per record (data: new data do not recompile)
     variant: eqx.Module = PAPER_VARIANT  # (a model form)
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
-    sigma: float | None = eqx.field(static=True, default=None)
+    sigma: jax.Array | None = None  # (data: a new σ does not recompile; None: estimated)
     priors: tuple = eqx.field(static=True, default=())
 
     def __init__(self, data, drives: Sequence[FluxDrive], space: ParameterSpace,
@@ -102,7 +102,7 @@ class FluxProblem(AbstractProblem):
         self.data, self.drive, self.space = jnp.asarray(data), drive, space
         self.output, self.scales = output, jnp.asarray(scales, dtype=jnp.float64)
         self.variant, self.substeps = variant, int(substeps)
-        self.sigma = None if sigma is None else float(sigma)
+        self.sigma = None if sigma is None else jnp.asarray(float(sigma), dtype=jnp.float64)
         self.priors = tuple(priors)
         self._check_priors()
 
