@@ -229,3 +229,11 @@ def test_a_fit_of_magnetic_loops_skips_the_substep_error_it_cannot_have(form):
     assert sampling_error(problem, params) is None
     problem, space = problems["classic"]
     assert sampling_error(problem, space.params_from_u(space.u_from_params(SOFT))) > 0
+    # a B-driven fit of the same form (its output, the field, is not a magnetic output
+    # of the H-driven kind): estimated as before, not refused
+    fd = jh.sinusoidal_flux(10.0, 0.3, 0.0, samples_per_period=24)
+    H = np.asarray(fd.observed(jh.simulate_flux(SOFT, fd, form, substeps=1).H))
+    space = jh.ParameterSpace.for_model(bounds, form=form, fixed=fix_structural(bounds))
+    flux = jh.FluxProblem([H], [fd], space, output="field", variant=form, substeps=1)
+    error = sampling_error(flux, space.params_from_u(space.u_from_params((SOFT, form))))
+    assert error is None or np.isfinite(error)

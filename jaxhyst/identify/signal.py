@@ -25,7 +25,7 @@ from ..model.simulate import (
 from ..params import Bounds, Parameters, check_parameters
 from ..saved import Model
 from .measured import holds_loop
-from .outputs import AbstractOutput, output_kind
+from .outputs import MAGNETIC_OUTPUTS, AbstractOutput, output_kind
 from .problem import AbstractProblem, GaussianPrior, ResidualGroup
 from .space import ParameterSpace
 
@@ -224,7 +224,7 @@ def sampling_error(problem, params) -> float | None:
         return None
     outputs = getattr(problem, "outputs", None) or (getattr(problem, "output", None),)
     if getattr(getattr(problem, "variant", None), "exact_in_substeps", False) and \
-            all(o is not None and output_kind(o).magnetic_only for o in outputs):
+            all(o in MAGNETIC_OUTPUTS for o in outputs):  # (not a B-driven fit's field)
         return None
     rows = np.atleast_2d(np.asarray(signal))[:, drive.run_in:]
     if not any(may_be_coarse(row, substeps) for row in rows):
