@@ -174,6 +174,17 @@ def test_the_losses_widen_the_loop_and_vanish_without_coefficients(form):
     assert area(lossy) > 1.2 * area(static)
 
 
+def test_the_losses_stay_finite_where_the_feedback_is_beyond_the_anhysteretics_stability():
+    # α·Ms/(3a) = 1.5 lies inside a box a user may give (α̃ ≤ 1e-3): the field balance's
+    # first guess and Newton steps used a slope that is not finite there (H_hyst NaN)
+    p = SOFT.replace(Ms=8.08e5, a=100.0, k=51.8, alpha=5.56e-4, c=0.84)
+    drive = jh.sinusoidal_field(50.0, 200.0, 0.0, samples_per_period=100)
+    sim = jh.simulate_unchecked(p, NO_ACTUATOR, drive, jh.PlayJA(2.46),
+                                losses=jh.Losses(0.87, 3.9), substeps=1)
+    for name in ("H_hyst", "M"):
+        assert np.all(np.isfinite(np.asarray(getattr(sim, name)))), name
+
+
 @pytest.mark.parametrize("form", FORMS, ids=IDS)
 def test_its_parameters_are_recovered_from_its_own_loops(form):
     truth = SOFT.replace(Ms=3.5e5, a=25.0, k=30.0, alpha=1e-5, c=0.25)

@@ -17,7 +17,10 @@ lies between h_n and H_n + H_{n+1} − h_n. It is found from the closed-form roo
 linearized equation (the start slope for dB/dh) by a fixed number of Newton steps
 (`NEWTON_STEPS`), each with dB/dh from forward mode through the interval map, kept inside
 that bracket. With k_e = k_x = τ = 0 the first guess is h_{n+1} = H_{n+1}: the static model,
-to round-off. Within an interval h is taken linear in time for the structural forcing.
+to round-off. Where the form's slope is not finite or below −1 (a mean field α·Ms beyond
+the anhysteretic's stability) the guess takes the vacuum's slope, and a Newton step is
+skipped where G does not fall with h_{n+1}: the values stay finite and in the bracket.
+Within an interval h is taken linear in time for the structural forcing.
 
 **The time loop** is the skeleton of `jaxhyst.model.timeloop`, with `RateDependentPath`
 as its form: the state is the static form's state and h, and its derivative rule, batch
@@ -60,6 +63,9 @@ def _end_field(inner, S, batched, p, losses, H0, H1, dt, state, h0):
     # first guess: dB/dh frozen at its start value, the quadratic in √|Δh| solved exactly
     slope = jax.vmap(inner.slope) if batched else inner.slope
     chi = slope(p, h0, state, jnp.where(R >= 0, 1.0, -1.0))
+    # (a slope that is not finite or below −1 — a feedback α·Ms beyond the anhysteretic's
+    # stability — gives no usable guess: start from the vacuum's)
+    chi = jnp.where(jnp.isfinite(chi) & (chi > -1.0), chi, 0.0)
     c = MU0 * (1.0 + chi) / dt
     a = 0.5 + losses.eddy * c + losses.lag / dt
     b = losses.excess * jnp.sqrt(jnp.maximum(c, 0.0))
@@ -73,7 +79,9 @@ def _end_field(inner, S, batched, p, losses, H0, H1, dt, state, h0):
 
     def newton(_, h1):
         G, dG = jax.jvp(balance, (h1,), (jnp.ones_like(h1),))
-        return jnp.clip(h1 - G / dG, lo, hi)
+        # G falls with h1; where it does not (an unstable feedback) no step is taken
+        return jnp.clip(h1 - jnp.where(dG < 0, G, 0.0) / jnp.where(dG < 0, dG, -1.0),
+                        lo, hi)
 
     return jax.lax.fori_loop(0, NEWTON_STEPS, newton, h1, unroll=on_accelerator())
 
