@@ -65,17 +65,11 @@ def batch_native(loop):
     def batch(axis_size, in_batched, *args):
         flags = tuple(in_batched)
         if not any(jax.tree.leaves(flags)):  # (jvp of the rule asks this too)
-            out = unbatched(*args)
-            return out, jax.tree.map(lambda _: False, out)
+            return _as_unbatched(unbatched(*args))
         if axis_size == 1:
             args = jax.tree.map(lambda x, b: x[0] if b else x, args, flags)
-            out = jax.tree.map(lambda y: y[None], unbatched(*args))
-        else:
-            args = jax.tree.map(
-                lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))),
-                args, flags)
-            out = batched(*args)
-        return out, jax.tree.map(lambda _: True, out)
+            return _as_batched(jax.tree.map(lambda y: y[None], unbatched(*args)))
+        return _as_batched(batched(*_broadcast(args, flags, axis_size)))
 
     return jax.jit(single)
 
@@ -96,16 +90,31 @@ def _merging(batched):
     def again(axis_size, in_batched, *args):
         flags = tuple(in_batched)
         if not any(jax.tree.leaves(flags)):  # (jvp of the rule asks this too)
-            out = merged(*args)
-            return out, jax.tree.map(lambda _: False, out)
-        args = jax.tree.map(
-            lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))),
-            args, flags)
+            return _as_unbatched(merged(*args))
+        args = _broadcast(args, flags, axis_size)
         out = merged(*jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), args))
-        out = jax.tree.map(lambda y: y.reshape(axis_size, -1, *y.shape[1:]), out)
-        return out, jax.tree.map(lambda _: True, out)
+        return _as_batched(jax.tree.map(lambda y: y.reshape(axis_size, -1, *y.shape[1:]),
+                                        out))
 
     return merged
+
+
+def _broadcast(args, flags, axis_size):
+    """``args`` with every leaf that ``flags`` marks unbatched broadcast to carry the
+    batch axis (of ``axis_size``) first, as the batched ones do."""
+    return jax.tree.map(
+        lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))),
+        args, flags)
+
+
+def _as_unbatched(out):
+    """A batch rule's answer: ``out`` with no batch axis."""
+    return out, jax.tree.map(lambda _: False, out)
+
+
+def _as_batched(out):
+    """A batch rule's answer: every leaf of ``out`` with the batch axis first."""
+    return out, jax.tree.map(lambda _: True, out)
 
 
 def _splice(leaves, positions, values):
@@ -143,14 +152,12 @@ def blocked_under_vmap(fn, **static):
         flags = jax.tree.leaves(in_batched)
         batched = [i for i, b in enumerate(flags) if b]
         if not batched:  # (jvp of the rule asks this too)
-            out = call(*args)
-            return out, jax.tree.map(lambda _: False, out)
+            return _as_unbatched(call(*args))
 
         def one(*values):
             return call(*jax.tree.unflatten(tree, _splice(leaves, batched, values)))
 
-        out = vmap_blocked(one, axis_size)(*[leaves[i] for i in batched])
-        return out, jax.tree.map(lambda _: True, out)
+        return _as_batched(vmap_blocked(one, axis_size)(*[leaves[i] for i in batched]))
 
     @eqx.filter_custom_jvp
     def blocked(args):
