@@ -17,12 +17,22 @@ from jaxhyst._mappings import release_if_crowded  # noqa: E402
 # compiled programs, and a second run of the suite loads them from disk
 jaxhyst.enable_compilation_cache()
 
-#: Background command-line chains (tests/cli_chains.py): name → (directory, process).
+#: Background command-line chains (tests/cli_chains.py): name → directory. The chains
+#: live in one directory per test run (``JAXHYST_TEST_CHAINS``, made by the first process
+#: of the run: the only one, or pytest-xdist's controller before its workers start), so
+#: that with workers (``-n 2``) each chain runs once, started by whichever worker
+#: collects first, and any worker can wait for it: ``chain/pid`` names its process
+#: (group), ``chain/status.json`` is written when it ends.
 CLI_CHAINS: dict = {}
-
 
 #: The test modules that check the chains' results.
 CHAIN_MODULES = ("test_cli_subprocess", "test_docs_site")
+_ROOT = "JAXHYST_TEST_CHAINS"
+
+
+def pytest_configure(config):
+    if not hasattr(config, "workerinput"):  # (one process, or xdist's controller)
+        os.environ[_ROOT] = tempfile.mkdtemp(prefix="jaxhyst-cli-")
 
 
 def pytest_collection_modifyitems(session, config, items):
@@ -33,7 +43,8 @@ def pytest_collection_modifyitems(session, config, items):
 def pytest_collection_finish(session):
     """Start the subprocess CLI chains as soon as the tests that check them are selected,
     so that they run alongside the in-process tests instead of after them: the docs chain
-    for the tests marked ``docs``, the others for the other tests of the chain modules."""
+    for the tests marked ``docs``, the others for the other tests of the chain modules.
+    A chain already started by another worker of this run is only recorded."""
     chained = [item for item in session.items if item.module.__name__ in CHAIN_MODULES]
     if not chained:
         return
@@ -41,29 +52,50 @@ def pytest_collection_finish(session):
     others = any(not item.get_closest_marker("docs") for item in chained)
     chains = (("docs",) if docs else ()) + (("reproduce", "sharding", "resume", "measured",
                                              "compensate") if others else ())
-    root = tempfile.mkdtemp(prefix="jaxhyst-cli-")
+    root = os.environ[_ROOT]
     script = os.path.join(os.path.dirname(__file__), "cli_chains.py")
     nice = ["nice", "-n", "10"] if shutil.which("nice") else []
     for chain in chains:
         d = os.path.join(root, chain)
-        os.makedirs(d)
+        CLI_CHAINS[chain] = d
+        try:
+            os.mkdir(d)  # (atomic: one process of the run starts each chain)
+        except FileExistsError:
+            continue
         # niced (the `nice` command: a preexec_fn would fork the multithreaded JAX
         # process): the in-process tests keep their core, the chains use what is left
         # (a session of its own: an aborted run ends the chain with the commands it ran)
-        CLI_CHAINS[chain] = (d, subprocess.Popen([*nice, sys.executable, script, chain, d],
-                                                 stdout=subprocess.DEVNULL,
-                                                 stderr=subprocess.DEVNULL,
-                                                 start_new_session=True))
+        proc = subprocess.Popen([*nice, sys.executable, script, chain, d],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                start_new_session=True)
+        with open(os.path.join(d, "pid.tmp"), "w") as fh:
+            fh.write(str(proc.pid))
+        os.replace(os.path.join(d, "pid.tmp"), os.path.join(d, "pid"))
+
+
+def chain_pid(d: str) -> int | None:
+    """The process (group) of the chain in ``d``, None until its starter wrote it."""
+    try:
+        with open(os.path.join(d, "pid")) as fh:
+            return int(fh.read())
+    except (OSError, ValueError):
+        return None
 
 
 def pytest_sessionfinish(session, exitstatus):
+    """The run's first process ends what is left of the chains (a worker leaves them to
+    the others)."""
     import signal
 
-    for _, proc in CLI_CHAINS.values():
-        if proc.poll() is None:
+    if hasattr(session.config, "workerinput") or not os.environ.get(_ROOT):
+        return
+    root = os.environ[_ROOT]
+    for chain in os.listdir(root):
+        pid = chain_pid(os.path.join(root, chain))
+        if pid is not None and not os.path.exists(os.path.join(root, chain, "status.json")):
             try:
-                os.killpg(proc.pid, signal.SIGKILL)
-            except ProcessLookupError:
+                os.killpg(pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
                 pass
 
 

@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import json
 import os
+import time
 
 import numpy as np
 import pytest
-from conftest import CLI_CHAINS
+from conftest import CLI_CHAINS, chain_pid
 
 import jaxhyst as jh
 
@@ -18,12 +19,45 @@ TIMEOUT = 1800  # s, per chain (the docs chain took 1 122 s on a loaded 2-core V
 
 
 def _finished(chain):
+    """(directory, status) of a chain once it has ended (started by this process or by
+    another worker of the run: conftest.py)."""
     if chain not in CLI_CHAINS:
         pytest.skip("chain not started (conftest.pytest_collection_finish)")
-    d, proc = CLI_CHAINS[chain]
-    proc.wait(timeout=TIMEOUT)
-    with open(os.path.join(d, "status.json")) as fh:
+    d = CLI_CHAINS[chain]
+    status = os.path.join(d, "status.json")
+    deadline = time.monotonic() + TIMEOUT
+    while not os.path.exists(status):
+        pid = chain_pid(d)
+        if pid is not None and not _alive(pid):
+            time.sleep(1.0)  # (its status may have been written just before it ended)
+            if not os.path.exists(status):
+                pytest.fail(f"the {chain} chain ended without its status.json ({d})")
+        if time.monotonic() > deadline:
+            pytest.fail(f"the {chain} chain did not end within {TIMEOUT} s ({d})")
+        time.sleep(0.5)
+    with open(status) as fh:
         return d, json.load(fh)
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` is running (a zombie our own process has not reaped
+    counts as ended)."""
+    try:
+        waited, _ = os.waitpid(pid, os.WNOHANG)  # (our child: reap it if it ended)
+        return waited == 0
+    except ChildProcessError:  # (another worker's child)
+        pass
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:  # (Linux: a zombie of another worker's has ended)
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
 
 
 def _log(d, name):
