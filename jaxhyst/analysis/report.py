@@ -241,7 +241,7 @@ class IdentifiabilityReport:
             if method == "bound-aware":
                 tag += "  (profile with the active bounds)"
             elif method == "profile":
-                tag += "  (from the profile likelihood: the quadratic fails here)"
+                tag += "  (from the profile likelihood)"
             lines.append(f"  {n:<9}= {v:.6g} ± {se:.2g} {u}  (95 %: {lo:.6g} … {hi:.6g})"
                          f"{tag}")
         for c in self.combinations:
