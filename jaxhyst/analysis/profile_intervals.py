@@ -11,7 +11,10 @@ describes the profile. Elsewhere the end is moved to where the profile crosses c
 successive batches of re-fits, each end's next value from the crossing of √Δχ², which is
 linear in the parameter where the cost is quadratic, bracketed once the crossing is
 passed (false position with the Illinois rule: the end kept twice running has its value
-halved, so that a strongly curved profile does not stall the bracket at one side); each
+halved, so that a strongly curved profile does not stall the bracket at one side; a
+bisection where two batches did not halve the bracket; an end whose bracket is within
+`BRACKET` of its distance from the optimum is the tested value beyond it: a wall, where
+Δχ² jumps past the tolerance within that distance); each
 re-fit starts from that end's previous one, moved along the linearised path by the change
 of the held value (so a batch's re-fits continue where the last ended, and an end
 already settled costs a few steps). Quantities of one sign by construction (a box
@@ -40,6 +43,9 @@ from .wording import Z95
 #: A linear end stands where the profile's Δχ² there is within this fraction of c (an
 #: end at 0.8·c would miss 4 % of the time on its side instead of 2.5 %).
 TOLERANCE = 0.05
+#: A bracketed end is also found where the bracket is this narrow relative to the end's
+#: distance from the optimum (a wall in the profile, where Δχ² jumps past TOLERANCE).
+BRACKET = 0.01
 #: Batches of re-fits at most (the first tests the linear ends).
 ROUNDS = 8
 #: Levenberg–Marquardt steps of each constrained re-fit (warm-started).
@@ -124,6 +130,7 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
     # same side moves twice running (Illinois: regula falsi would stall against it)
     f_below, f_above = np.full(len(ends), np.nan), np.full(len(ends), np.nan)
     moved = np.zeros(len(ends), int)  # the side that moved last: −1 below, +1 above
+    widths = [[] for _ in ends]  # each end's bracket width after every round
     done = np.zeros(len(ends), bool)
     ratio_first = np.full(len(ends), np.nan)
     unbounded = {}
@@ -195,9 +202,20 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
                 continue
             # the next value: where √Δχ² (linear in s for a quadratic cost) reaches √c
             if np.isfinite(above[k]):
+                width = above[k] - below[k]
+                if width <= BRACKET * above[k]:
+                    # a wall: the crossing is located to BRACKET of its distance from
+                    # the optimum, though Δχ² changes too fast there to meet TOLERANCE;
+                    # the end is the tested value beyond it (never narrower)
+                    s_now[k] = side * above[k]
+                    done[k] = True
+                    continue
+                widths[k].append(width)
                 f0 = f_below[k] if np.isfinite(f_below[k]) else -np.sqrt(c)  # (0: optimum)
                 # (a re-fit that failed beyond: the bracket halved)
                 t = -f0 / max(f_above[k] - f0, 1e-300) if np.isfinite(f_above[k]) else 0.5
+                if len(widths[k]) >= 3 and widths[k][-1] > 0.5 * widths[k][-3]:
+                    t = 0.5  # (false position creeping along a wall: bisect instead)
                 s_next = below[k] + t * (above[k] - below[k])
             else:
                 s_next = s * min(np.sqrt(c / max(d, 1e-12)), 4.0)
