@@ -345,3 +345,37 @@ def test_the_b_driven_model_warns_where_its_estimate_says_its_sampling_is_coarse
     with warnings.catch_warnings():
         warnings.simplefilter("error", jh.identify.SamplingWarning)
         jh.simulate_flux(sharp, jh.sinusoidal_flux(50.0, 0.45, samples_per_period=2000))
+
+
+def test_an_end_on_a_wall_of_the_profile_is_located_or_said_to_be_unsettled():
+    """p is measured directly (σ = 1, p̂ = 3) and a penalty 1000·(p − 3.5)² rises from
+    nothing at 3.5: the profile's upper crossing is at 3.5435, where Δχ² climbs from 0.25
+    to far above the threshold within a hundredth of p — a wall no false position on
+    √Δχ² reaches in a few batches. The end is either found (a re-fit within the
+    tolerance, or the tested value just beyond the crossing) or the report says that it
+    was not settled and gives a bracket that holds both the crossing and the end."""
+    from jaxhyst.analysis import identifiability, profile_intervals
+
+    def residuals(theta, data):
+        wall = 1000.0 * jnp.maximum(theta["p"] - 3.5, 0.0) ** 2
+        return {"obs": jnp.stack([theta["p"] - data["p0"], theta["q"] - data["q0"], wall])}
+
+    space = jh.ParameterSpace.for_tree(lower={"p": 0.5, "q": 0.5}, upper={"p": 10.0, "q": 10.0})
+    problem = jh.ResidualProblem(residuals, space, {"p0": 3.0, "q0": 2.0},
+                                 groups={"obs": {"sigma": 1.0}})
+    fit = jh.solve(problem, np.full(2, 0.5), solver="lm", report=False)
+    rep = identifiability(problem, fit.params, profile=True)
+    crossing = 3.5 + ((Z95**2 - 0.25) / 1000.0**2) ** 0.25
+    end = rep.intervals["p"][1]
+    if "p" in rep.unsettled:
+        u = rep.unsettled["p"]
+        a, b = sorted(u["between"])
+        assert u["side"] == "above" and a <= crossing <= b and a <= end <= b, (u, end)
+        assert "upper end was not settled" in str(rep) and f"{b:.6g}" in str(rep)
+    else:
+        d = (end - 3.0) ** 2 + (1000.0 * max(end - 3.5, 0.0) ** 2) ** 2
+        assert abs(d / Z95**2 - 1) <= profile_intervals.TOLERANCE or \
+            crossing <= end and np.log(end / 3.0) <= np.log(crossing / 3.0) / (
+                1 - profile_intervals.BRACKET), end  # (p > 0: profiled in ln p)
+    assert rep.to_dict()["unsettled"] == {n: {"side": u["side"], "between": list(u["between"])}
+                                          for n, u in rep.unsettled.items()}

@@ -222,10 +222,14 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
             s_now[k] = side * s_next
     lo = dict(report.intervals)
     methods = dict(report.interval_methods or {})
-    first = {}
+    first, unsettled = {}, {}
     for k, (i, side, logs) in enumerate(ends):
         n = names[i]
         v = value(i, logs, s_now[k])
+        if not done[k] and np.isfinite(above[k]):  # (the last bracket's interpolation)
+            unsettled[n] = {"side": "below" if side < 0 else "above",
+                            "between": (value(i, logs, side * below[k]),
+                                        value(i, logs, side * above[k]))}
         a, b = lo[n]
         lo[n] = (min(v, b), b) if side < 0 else (a, max(v, a))
         first.setdefault(n, [1.0, 1.0])[0 if side < 0 else 1] = float(ratio_first[k])
@@ -233,5 +237,6 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
             methods[n] = "profile"
     report.intervals = lo
     report.interval_methods = methods
+    report.unsettled = unsettled
     report.linearity.update({n: tuple(r) for n, r in first.items()})
     return unbounded

@@ -74,6 +74,9 @@ class IdentifiabilityReport:
     linearity: dict = field(default_factory=dict)  # {name or combination: (lo, hi) ratios}
     misspecified: str | None = None  # what the residual tests found (misspecification)
     unbounded: dict = field(default_factory=dict)  # {name: "below"/"above"}: the box ends
+    #: {name: {"side": "below"/"above", "between": (θ under c, θ over c)}}: ends the
+    #: profile search did not settle (the interval holds its interpolation between them)
+    unsettled: dict = field(default_factory=dict)
 
     @property
     def identifiable(self) -> tuple[str, ...]:
@@ -194,6 +197,8 @@ class IdentifiabilityReport:
                              for c in self.combinations],
             "sigma": self.sigma, "dof": self.dof, "misspecified": self.misspecified,
             "unbounded": dict(self.unbounded),
+            "unsettled": {n: {"side": u["side"], "between": [float(v) for v in u["between"]]}
+                          for n, u in self.unsettled.items()},
             "group_sigma": {k: {"sigma": v[0], "estimated": v[1]}
                             for k, v in self.group_sigma.items()},
             "parameters": {n: {"value": float(v), "unit": u, "std_error": f(self.std_errors[n]),
@@ -258,6 +263,11 @@ class IdentifiabilityReport:
         for k, side in self.unbounded.items():
             lines.append(f"  {k}: the data do not bound it {side} inside the box (its "
                          "interval ends at the box's)")
+        for k, u in self.unsettled.items():
+            a, b = sorted(u["between"])
+            lines.append(f"  {k}: its {'lower' if u['side'] == 'below' else 'upper'} end was "
+                         f"not settled by the profile search (its profile rises too steeply "
+                         f"there): the crossing lies between {a:.6g} and {b:.6g}")
         if self.misspecified:
             lines.append(f"  MISSPECIFIED: {self.misspecified}")
         return "\n".join(lines)
