@@ -370,12 +370,17 @@ def test_an_end_on_a_wall_of_the_profile_is_located_or_said_to_be_unsettled():
     if "p" in rep.unsettled:
         u = rep.unsettled["p"]
         a, b = sorted(u["between"])
-        assert u["side"] == "above" and a <= crossing <= b and a <= end <= b, (u, end)
+        assert u["side"] == "above" and u["bracketed"], u
+        assert a <= crossing <= b and a <= end <= b, (u, end)
         assert "upper end was not settled" in str(rep) and f"{b:.6g}" in str(rep)
     else:
         d = (end - 3.0) ** 2 + (1000.0 * max(end - 3.5, 0.0) ** 2) ** 2
         assert abs(d / Z95**2 - 1) <= profile_intervals.TOLERANCE or \
             crossing <= end and np.log(end / 3.0) <= np.log(crossing / 3.0) / (
                 1 - profile_intervals.BRACKET), end  # (p > 0: profiled in ln p)
-    assert rep.to_dict()["unsettled"] == {n: {"side": u["side"], "between": list(u["between"])}
+    assert rep.to_dict()["unsettled"] == {n: {**u, "between": list(u["between"])}
                                           for n, u in rep.unsettled.items()}
+    # an end never bracketed (every re-fit below the threshold) is said to be extrapolated
+    rep.unsettled = {"q": {"side": "below", "between": (1.2, 0.9), "bracketed": False}}
+    assert "q: its lower end was not settled by the profile search: the profile stays " \
+        "below the threshold as far as 1.2; the end given, 0.9, is extrapolated" in str(rep)

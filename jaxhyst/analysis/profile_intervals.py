@@ -226,10 +226,12 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
     for k, (i, side, logs) in enumerate(ends):
         n = names[i]
         v = value(i, logs, s_now[k])
-        if not done[k] and np.isfinite(above[k]):  # (the last bracket's interpolation)
+        if not done[k]:  # (the last bracket's interpolation, or beyond every re-fit)
+            bracketed = bool(np.isfinite(above[k]))
             unsettled[n] = {"side": "below" if side < 0 else "above",
                             "between": (value(i, logs, side * below[k]),
-                                        value(i, logs, side * above[k]))}
+                                        v if not bracketed else value(i, logs, side * above[k])),
+                            "bracketed": bracketed}
         a, b = lo[n]
         lo[n] = (min(v, b), b) if side < 0 else (a, max(v, a))
         first.setdefault(n, [1.0, 1.0])[0 if side < 0 else 1] = float(ratio_first[k])

@@ -74,8 +74,9 @@ class IdentifiabilityReport:
     linearity: dict = field(default_factory=dict)  # {name or combination: (lo, hi) ratios}
     misspecified: str | None = None  # what the residual tests found (misspecification)
     unbounded: dict = field(default_factory=dict)  # {name: "below"/"above"}: the box ends
-    #: {name: {"side": "below"/"above", "between": (θ under c, θ over c)}}: ends the
-    #: profile search did not settle (the interval holds its interpolation between them)
+    #: {name: {"side": "below"/"above", "between": (θ under c, θ over c or the end
+    #: extrapolated), "bracketed": bool}}: ends the profile search did not settle (the
+    #: interval holds the bracket's interpolation, or the extrapolation)
     unsettled: dict = field(default_factory=dict)
 
     @property
@@ -197,7 +198,7 @@ class IdentifiabilityReport:
                              for c in self.combinations],
             "sigma": self.sigma, "dof": self.dof, "misspecified": self.misspecified,
             "unbounded": dict(self.unbounded),
-            "unsettled": {n: {"side": u["side"], "between": [float(v) for v in u["between"]]}
+            "unsettled": {n: {**u, "between": [float(v) for v in u["between"]]}
                           for n, u in self.unsettled.items()},
             "group_sigma": {k: {"sigma": v[0], "estimated": v[1]}
                             for k, v in self.group_sigma.items()},
@@ -264,10 +265,17 @@ class IdentifiabilityReport:
             lines.append(f"  {k}: the data do not bound it {side} inside the box (its "
                          "interval ends at the box's)")
         for k, u in self.unsettled.items():
-            a, b = sorted(u["between"])
-            lines.append(f"  {k}: its {'lower' if u['side'] == 'below' else 'upper'} end was "
-                         f"not settled by the profile search (its profile rises too steeply "
-                         f"there): the crossing lies between {a:.6g} and {b:.6g}")
+            end = "lower" if u["side"] == "below" else "upper"
+            if u.get("bracketed", True):
+                a, b = sorted(u["between"])
+                lines.append(f"  {k}: its {end} end was not settled by the profile search "
+                             f"(a steep profile, or too few batches): the crossing lies "
+                             f"between {a:.6g} and {b:.6g}")
+            else:
+                lines.append(f"  {k}: its {end} end was not settled by the profile search: "
+                             f"the profile stays below the threshold as far as "
+                             f"{u['between'][0]:.6g}; the end given, {u['between'][1]:.6g}, "
+                             "is extrapolated")
         if self.misspecified:
             lines.append(f"  MISSPECIFIED: {self.misspecified}")
         return "\n".join(lines)
