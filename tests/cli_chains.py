@@ -69,6 +69,7 @@ def sharding_inner(d):
 
     import jaxhyst as jh
 
+    jh.enable_compilation_cache()  # (as the suite and the command line do)
     out = {"devices": jax.device_count()}
     problem = table1_problem(spp=50)
     small = dict(q1=24, q2=10, T1=2, T2=6, T3=20, local_steps=4)

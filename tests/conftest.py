@@ -33,6 +33,11 @@ _ROOT = "JAXHYST_TEST_CHAINS"
 def pytest_configure(config):
     if not hasattr(config, "workerinput"):  # (one process, or xdist's controller)
         os.environ[_ROOT] = tempfile.mkdtemp(prefix="jaxhyst-cli-")
+    if os.environ.get("JAXHYST_TEST_PROFILE"):  # (where the time goes: compile_profile.py)
+        from compile_profile import Profile
+
+        config.pluginmanager.register(Profile(os.environ["JAXHYST_TEST_PROFILE"]),
+                                      "jaxhyst-compile-profile")
 
 
 def pytest_collection_modifyitems(session, config, items):
@@ -84,7 +89,8 @@ def chain_pid(d: str) -> int | None:
 
 def pytest_sessionfinish(session, exitstatus):
     """The run's first process ends what is left of the chains (a worker leaves them to
-    the others)."""
+    the others), and removes their directory after a run that passed (after a failure
+    it stays, with the chains' logs, and its path is printed)."""
     import signal
 
     if hasattr(session.config, "workerinput") or not os.environ.get(_ROOT):
@@ -97,6 +103,10 @@ def pytest_sessionfinish(session, exitstatus):
                 os.killpg(pid, signal.SIGKILL)
             except (ProcessLookupError, PermissionError):
                 pass
+    if exitstatus == 0 or not os.listdir(root):
+        shutil.rmtree(root, ignore_errors=True)
+    else:
+        print(f"\nthe command-line chains' logs: {root}")
 
 
 #: The tests after which the compiled programs were dropped (`release_if_crowded`): the

@@ -1,0 +1,78 @@
+"""Where a test run's time goes: JAX's tracing, lowering and compiling (or loading from
+the persistent cache) per test, from JAX's own duration events (``jax.monitoring``).
+
+    JAXHYST_TEST_PROFILE=DIR python -m pytest …     # each process writes DIR/<worker>.json
+    python tests/compile_profile.py DIR [N]         # totals and the N costliest tests
+
+Seconds are per process (with ``-n 2``, two workers' sums); "compile" includes the
+programs loaded from the cache ("load" is that part), so compile − load is compiling.
+The command-line chains' subprocesses are not counted.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import os
+import sys
+import time
+
+#: JAX's event name → ours.
+EVENTS = {"/jax/core/compile/jaxpr_trace_duration": "trace",
+          "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
+          "/jax/core/compile/backend_compile_duration": "compile",
+          "/jax/compilation_cache/cache_retrieval_time_sec": "load"}
+KINDS = ("wall", "trace", "lower", "compile", "load")
+
+
+class Profile:
+    """A pytest plugin (conftest.py registers it where ``JAXHYST_TEST_PROFILE`` is set)."""
+
+    def __init__(self, directory: str):
+        from jax import monitoring
+
+        self.directory, self.current = directory, "<outside tests>"
+        self.seconds = collections.defaultdict(collections.Counter)
+        monitoring.register_event_duration_secs_listener(self._event)
+
+    def _event(self, event, duration, **_):
+        kind = EVENTS.get(event)
+        if kind:
+            self.seconds[self.current][kind] += duration
+            self.seconds[self.current][kind + "_n"] += 1
+
+    def pytest_runtest_protocol(self, item, nextitem):
+        self.current, start = item.nodeid, time.perf_counter()
+        yield
+        self.seconds[item.nodeid]["wall"] += time.perf_counter() - start
+        self.current = "<outside tests>"
+
+    pytest_runtest_protocol.hookwrapper = True  # (pytest reads the attribute)
+
+    def pytest_sessionfinish(self, session):
+        if not self.seconds:  # (xdist's controller runs no test)
+            return
+        os.makedirs(self.directory, exist_ok=True)
+        name = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        with open(os.path.join(self.directory, f"{name}.json"), "w") as fh:
+            json.dump(self.seconds, fh, indent=0)
+
+
+def summary(directory: str, top: int = 15) -> str:
+    tests: dict = collections.defaultdict(collections.Counter)
+    for name in sorted(os.listdir(directory)):
+        if name.endswith(".json"):
+            with open(os.path.join(directory, name)) as fh:
+                for test, seconds in json.load(fh).items():
+                    tests[test].update(seconds)
+    total = sum(tests.values(), collections.Counter())
+    lines = ["all tests: " + ", ".join(f"{k} {total[k]:.0f} s" for k in KINDS)
+             + f" ({total['compile_n']:.0f} programs compiled or loaded)"]
+    for test, s in sorted(tests.items(), key=lambda kv: -kv[1]["wall"])[:top]:
+        lines.append(f"{s['wall']:7.1f} s  trace {s['trace']:5.1f}  lower {s['lower']:5.1f}  "
+                     f"compile {s['compile']:5.1f} (load {s['load']:4.1f})  {test}")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(summary(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 15))
