@@ -93,7 +93,10 @@ def pytest_sessionfinish(session, exitstatus):
     it stays, with the chains' logs, and its path is printed)."""
     import signal
 
-    if hasattr(session.config, "workerinput") or not os.environ.get(_ROOT):
+    if hasattr(session.config, "workerinput"):  # (a worker: its releases to the controller)
+        session.config.workeroutput["released"] = RELEASED
+        return
+    if not os.environ.get(_ROOT):
         return
     root = os.environ[_ROOT]
     for chain in os.listdir(root):
@@ -112,6 +115,12 @@ def pytest_sessionfinish(session, exitstatus):
 #: The tests after which the compiled programs were dropped (`release_if_crowded`): the
 #: tests after them trace and load again what they share with earlier ones.
 RELEASED: list = []
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    """(pytest-xdist's controller: a worker's releases, for the summary)"""
+    RELEASED.extend(getattr(node, "workeroutput", {}).get("released", []))
 
 
 def pytest_terminal_summary(terminalreporter):
