@@ -17,6 +17,8 @@ import os
 import sys
 import time
 
+import pytest
+
 #: JAX's event name → ours.
 EVENTS = {"/jax/core/compile/jaxpr_trace_duration": "trace",
           "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
@@ -41,13 +43,12 @@ class Profile:
             self.seconds[self.current][kind] += duration
             self.seconds[self.current][kind + "_n"] += 1
 
+    @pytest.hookimpl(hookwrapper=True)
     def pytest_runtest_protocol(self, item, nextitem):
         self.current, start = item.nodeid, time.perf_counter()
         yield
         self.seconds[item.nodeid]["wall"] += time.perf_counter() - start
         self.current = "<outside tests>"
-
-    pytest_runtest_protocol.hookwrapper = True  # (pytest reads the attribute)
 
     def pytest_sessionfinish(self, session):
         if not self.seconds:  # (xdist's controller runs no test)

@@ -136,3 +136,21 @@ def test_a_release_drops_the_executables_and_keeps_the_traces():
     np.testing.assert_array_equal(np.asarray(f(x)), want)
     assert len(traced) == 1  # (not traced again)
     assert f._cache_size() == 1
+
+
+def test_the_test_profile_hears_jaxs_trace_and_compile_events(tmp_path):
+    """tests/compile_profile.py names JAX's duration events: a new program fires them."""
+    from compile_profile import Profile, summary
+
+    profile = Profile(str(tmp_path))
+    profile.current = "a::test"
+    try:
+        jax.jit(lambda x: jnp.sin(x) * 3.0 + 0.123456)(jnp.arange(7.0)).block_until_ready()
+    finally:
+        jax.monitoring.unregister_event_duration_listener(profile._event)
+    seen = profile.seconds["a::test"]
+    assert seen["trace_n"] >= 1 and seen["lower_n"] >= 1 and seen["compile_n"] >= 1, seen
+    profile.seconds["a::test"]["wall"] = 1.0
+    profile.pytest_sessionfinish(None)
+    assert "a::test" in summary(str(tmp_path)) and "programs compiled or loaded" in \
+        summary(str(tmp_path))
