@@ -152,5 +152,5 @@ def test_the_test_profile_hears_jaxs_trace_and_compile_events(tmp_path):
     assert seen["trace_n"] >= 1 and seen["lower_n"] >= 1 and seen["compile_n"] >= 1, seen
     profile.seconds["a::test"]["wall"] = 1.0
     profile.pytest_sessionfinish(None)
-    assert "a::test" in summary(str(tmp_path)) and "programs compiled or loaded" in \
-        summary(str(tmp_path))
+    text = summary(str(tmp_path))
+    assert "a::test" in text and "programs compiled or loaded" in text
