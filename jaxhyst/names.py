@@ -11,7 +11,7 @@ HYBRID_NAMES = ("GATR1", "GALM1", "GATR2", "GALM2", "GA")
 #: The loss coefficients of the rate-dependent model (`jaxhyst.Losses`), and the
 #: parameters the built-in forms of pinning cells have of their own: the names beyond the
 #: ten that a box, --fix or --vary may give.
-LOSS_PARAMETER_NAMES = ("eddy", "excess", "lag")
+LOSS_PARAMETER_NAMES = ("eddy", "excess", "lag", "relax")
 FORM_PARAMETER_NAMES = ("spread", "a_rev")
 
 #: Model forms: command-line name → class name in `jaxhyst` (the Jiles–Atherton variants,

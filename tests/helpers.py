@@ -224,6 +224,47 @@ def reference_dynamic(params: jh.Parameters, t, H, variant="energy", k_e=0.0, k_
     return out[:, 0], out[:, 1]
 
 
+def reference_relaxed(params: jh.Parameters, t, H, k_e=0.0, k_x=0.0, lag=0.0, relax=1e-4):
+    """The H-driven model with the after-effect (relax·dM/dt = M_s − M) as the ODE it
+    discretizes, written independently: state (h, M_s, M), Ṁ_s = χ(h, M_s)·ḣ, and ḣ from
+    H − h = k_e·Ḃ + k_x·sign(Ḃ)·|Ḃ|^(1/2) + lag·ḣ with Ḃ = μ0·(ḣ + Ṁ) (Ṁ does not depend
+    on ḣ: a root by Brent's method; h = H without loss fields), H linear in time per
+    sample interval, Radau (the field balance is stiff: its time scale is k_e·μ0). Returns
+    (h, M) at the samples."""
+    from scipy.integrate import solve_ivp
+    from scipy.optimize import brentq
+
+    p = params.to_dict()
+    t, H = np.asarray(t, float), np.asarray(H, float)
+    fields = bool(k_e or k_x or lag)
+    state = np.array([H[0], 0.0, 0.0])
+    out = [state]
+    for i in range(len(t) - 1):
+        slope = (H[i + 1] - H[i]) / (t[i + 1] - t[i])
+
+        def rhs(tau, s, i=i, slope=slope):
+            mdot = (s[1] - s[2]) / relax
+            u = slope
+            if fields:
+                R = H[i] + slope * (tau - t[i]) - s[0]
+
+                def balance(u):
+                    return (k_e * MU0 + lag) * u + k_e * MU0 * mdot + \
+                        _rate_field(MU0 * (u + mdot), 0.0, k_x) - R
+
+                u = brentq(balance, -1e15, 1e15, xtol=1e-12, rtol=1e-15)
+            chi = np_slope(s[0], s[1], 1.0 if u >= 0 else -1.0, p)
+            return [u, chi * u, mdot]
+
+        sol = solve_ivp(rhs, (t[i], t[i + 1]), state, method="Radau" if fields else "DOP853",
+                        rtol=1e-10, atol=[1e-9 * max(1.0, np.max(np.abs(H))),
+                                          1e-9 * p["Ms"], 1e-9 * p["Ms"]])
+        state = sol.y[:, -1]
+        out.append(state)
+    out = np.array(out)
+    return out[:, 0], out[:, 2]
+
+
 def reference_play(params: jh.Parameters, spread: float, cells: int, H, a_rev=None):
     """M (A/m) at the samples of the field H (A/m) for a form of pinning cells, written
     from its equations independently of jaxhyst: N play operators of widths

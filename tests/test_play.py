@@ -45,7 +45,7 @@ H_MINOR = _field([0, 200, -200, 200, 50, 120, 50, 120, 50])
 
 
 def _M(form, p, H, substeps=2, driver="H"):
-    Y, _, _ = hysteresis_path(form, p, None, jnp.asarray(H), substeps=substeps, driver=driver)
+    Y, _, _, _ = hysteresis_path(form, p, None, jnp.asarray(H), substeps=substeps, driver=driver)
     return np.concatenate([[0.0], np.asarray(Y[:, -1])])
 
 
@@ -132,7 +132,7 @@ def test_a_batch_equals_single_runs(form):
 
     def M(x):
         f = _with(form, spread=x[2])
-        Y, _, _ = hysteresis_path(f, SOFT.replace(a=x[0], k=x[1]), None,
+        Y, _, _, _ = hysteresis_path(f, SOFT.replace(a=x[0], k=x[1]), None,
                                   jnp.asarray(H_MINOR), substeps=2)
         return Y
 

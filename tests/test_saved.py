@@ -79,11 +79,11 @@ def test_a_fitted_problem_gives_its_model(tmp_path):
 
 
 def test_a_rate_dependent_model_keeps_its_loss_coefficients(tmp_path):
-    model = jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1, losses=jh.Losses(0.02, 0.1, 3e-5))
+    model = jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1, losses=jh.Losses(0.02, 0.1, 3e-5, 4e-4))
     jh.save_model(tmp_path / "dyn.eqx", model)
     back = jh.load_model(tmp_path / "dyn.eqx")
     assert float(back.losses.eddy) == 0.02 and float(back.losses.excess) == 0.1
-    assert float(back.losses.lag) == 3e-5
+    assert float(back.losses.lag) == 3e-5 and float(back.losses.relax) == 4e-4
     jh.save_model(tmp_path / "static.eqx", jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1))
     assert jh.load_model(tmp_path / "static.eqx").losses is None
 
@@ -106,8 +106,8 @@ def test_a_model_file_from_before_the_lag_loads_with_no_lag(tmp_path):
     eqx.tree_serialise_leaves(buf, old)
     (tmp_path / "old.eqx").write_bytes(buf.getvalue())
     back = jh.load_model(tmp_path / "old.eqx")
-    assert (float(back.losses.eddy), float(back.losses.excess), float(back.losses.lag)) == \
-        (0.02, 0.1, 0.0)
+    assert (float(back.losses.eddy), float(back.losses.excess), float(back.losses.lag),
+            float(back.losses.relax)) == (0.02, 0.1, 0.0, 0.0)
 
 
 def test_a_condition_law_is_saved_and_evaluated_at_a_new_amplitude(tmp_path):

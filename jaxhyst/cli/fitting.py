@@ -25,6 +25,7 @@ def widen_derived_box(args, spec, given, loops, problem, result, quiet: bool = F
     from jaxhyst.params import PHYSICAL_RULES, at_physical_limit
 
     extra_rules = {"eddy": lambda v: v >= 0, "excess": lambda v: v >= 0, "lag": lambda v: v >= 0,
+                   "relax": lambda v: v >= 0,
                    "spread": lambda v: (v >= 0) & (v <= 10),
                    "a_rev": lambda v: (v >= 1e-6) & (v <= 1e9)}
     for _ in range(WIDENINGS):

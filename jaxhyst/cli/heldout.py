@@ -112,9 +112,9 @@ def rate_note(spec, loops) -> str | None:
     if hi <= 1.1 * lo:
         return None
     return (f"the loops were measured at {lo:.4g}–{hi:.4g} Hz and the model is rate "
-            "independent: it draws every frequency alike. --losses eddy,excess,lag adds the "
-            "rate-dependent model (the file needs times); --vary P:log_f a law in the "
-            "frequency")
+            "independent: it draws every frequency alike. --losses eddy,excess,lag,relax adds "
+            "the rate-dependent model (the file needs times; relax: H-driven); --vary "
+            "P:log_f a law in the frequency")
 
 
 def check_comparison(spec, loops, forms) -> None:

@@ -90,8 +90,9 @@ def add_parser(sub) -> None:
     parser.add_argument("--cells", type=POSITIVE_INT, default=DEFAULT_CELLS,
                         help="pinning cells of the forms play and preisach")
     parser.add_argument("--losses", help="loss coefficients to identify with the "
-                        "rate-dependent model, from 'eddy', 'excess' and 'lag' (the "
-                        "hysteresis field's relaxation time), e.g. 'eddy,excess' (the file "
+                        "rate-dependent model, from 'eddy', 'excess', 'lag' (the "
+                        "hysteresis field's relaxation time) and 'relax' (the "
+                        "magnetization's, an after-effect), e.g. 'eddy,excess' (the file "
                         "needs times; their box is derived from the data's rates unless "
                         "--bounds names it)")
     parser.add_argument("--columns", help="column names for a file without a header, "
@@ -328,7 +329,7 @@ def _forms(args) -> list[str]:
 
 
 def _losses(text) -> list[str]:
-    """--losses 'eddy,excess,lag' → the loss coefficients to identify."""
+    """--losses 'eddy,excess,relax' → the loss coefficients to identify."""
     if not text:
         return []
     names = [n.strip() for n in text.split(",") if n.strip()]

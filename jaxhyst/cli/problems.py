@@ -72,9 +72,10 @@ def resolve_bounds(spec: dict, given, loops):
     parameters, text)``. For M or B data the box derived from the ``loops``, else the
     paper's Table 1 box; a bounds file's entries replace the defaults for the parameters
     it names; a preset is used as is. The loss coefficients' box: [0, 2·Hmax/max|dB/dt|],
-    [0, 2·Hmax/max|dB/dt|^(1/2)] and, for the lag, [0, 2·Hmax/|dH/dt|] (|dH/dt| the
-    applied field's 95th percentile) (a loss field up to twice the applied field's
-    amplitude; it needs times and M or B data, or a bounds file naming them); a form's
+    [0, 2·Hmax/max|dB/dt|^(1/2)] (a loss field up to twice the applied field's amplitude)
+    and, for lag and relax, [0, 2·Hmax/|dH/dt|] (|dH/dt| the applied field's 95th
+    percentile: about a third of a sine's period); they need times and M or B data, or a
+    bounds file naming them; a form's
     own parameters: its default box."""
     import numpy as np
 
@@ -100,7 +101,7 @@ def resolve_bounds(spec: dict, given, loops):
                            f"(--bounds with \"{n}\": [lower, upper], SI).")
         Hmax = max(float(np.max(np.abs(loop_field(lp, actuator, spec["data"]))))
                    for lp in loops)
-        if n == "lag":
+        if n in ("lag", "relax"):
             extra[n] = (0.0, 2.0 * Hmax / _field_rate(loops, actuator, spec["data"]))
             continue
         rate = _flux_rate(loops, out, actuator, spec["data"])

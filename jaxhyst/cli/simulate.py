@@ -31,7 +31,7 @@ def add_parser(sub) -> None:
     parser.add_argument("--actuator",
                         help="actuator1 (default), actuator2 or a JSON file {Ar, lr, n, Hb}")
     parser.add_argument("--model", help="a saved model (identify --save-model) instead of "
-                        "--params/--actuator/--variant/--substeps/--eddy/--excess/--lag; a "
+                        "--params/--actuator/--variant/--substeps/--eddy/--excess/--lag/--relax; a "
                         "condition law (identify --vary) is evaluated at --frequency, "
                         "--temperature and the drive's amplitude")
     parser.add_argument("--temperature", type=FINITE, help="with --model: the temperature, "
@@ -52,6 +52,9 @@ def add_parser(sub) -> None:
     parser.add_argument("--lag", type=NON_NEGATIVE, help="relaxation time of the hysteresis "
                         "field, s: H_lag = lag·dH_hyst/dt (the rate-dependent model; "
                         "default 0)")
+    parser.add_argument("--relax", type=NON_NEGATIVE, help="relaxation time of the "
+                        "magnetization, s: relax·dM/dt = M_static − M, an after-effect "
+                        "(the H-driven rate-dependent model; default 0)")
     parser.add_argument("--drive", help="CSV/TSV with t and H (or I) columns")
     parser.add_argument("--columns", help="column names for a file without a header")
     parser.add_argument("--run-in-periods", type=COUNT, help="with --drive: copies of the "
@@ -173,9 +176,10 @@ def _losses(args):
     """The loss coefficients given (`jaxhyst.Losses`), or None for the static model."""
     import jaxhyst as jh
 
-    if args.eddy is None and args.excess is None and args.lag is None:
+    if all(getattr(args, n) is None for n in ("eddy", "excess", "lag", "relax")):
         return None
-    return jh.Losses(eddy=args.eddy or 0.0, excess=args.excess or 0.0, lag=args.lag or 0.0)
+    return jh.Losses(eddy=args.eddy or 0.0, excess=args.excess or 0.0, lag=args.lag or 0.0,
+                     relax=args.relax or 0.0)
 
 
 def _model(args, record):
@@ -188,8 +192,8 @@ def _model(args, record):
         return (parameters_arg(args.params or args.preset), None,
                 variant_from_name(args.variant or "energy"),
                 args.substeps or DEFAULT_SUBSTEPS, _losses(args))
-    given = [o for o in ("params", "actuator", "variant", "substeps", "eddy", "excess", "lag")
-             if getattr(args, o) is not None]
+    given = [o for o in ("params", "actuator", "variant", "substeps", "eddy", "excess", "lag",
+                         "relax") if getattr(args, o) is not None]
     if given:
         raise CLIError(f"--model holds the parameters, actuator, form, substeps and losses; "
                        f"leave out --{', --'.join(given)}.")
@@ -229,6 +233,9 @@ def _run_flux(args, params, variant, substeps, losses) -> int:
     import jaxhyst as jh
     from jaxhyst.io import write_columns_csv
 
+    if losses is not None and np.any(np.asarray(losses.relax) > 0):
+        raise CLIError("--flux-amplitude drives the B-driven model, which has no "
+                       "after-effect: leave out --relax (or the model's relax), or drive H.")
     drive = jh.sinusoidal_flux(args.frequency, args.flux_amplitude, periods=args.periods,
                                samples_per_period=args.samples_per_period)
     sim = jh.simulate_flux(params, drive, variant, substeps=substeps, losses=losses)

@@ -2,8 +2,9 @@
 by running each stage of the model backwards (`jaxhyst.model.inverse`).
 
 displacement y(t) → magnetostriction λ(t) (structure inverted) → magnetization M(t) on
-the bias's branch (magnetostriction inverted) → field H(t) (Jiles–Atherton driven by M,
-then the loss field of a conducting core, H_eddy + H_exc + H_lag at the rates of B =
+the bias's branch (magnetostriction inverted) → field H(t) (Jiles–Atherton driven by M —
+by M + τ_M·dM/dt, the static magnetization it relaxes from, with the after-effect — then
+the loss field of a conducting core, H_eddy + H_exc + H_lag at the rates of B =
 μ0·(H_hyst + M) and H_hyst, added) → input u = (H − Hb)/gain.
 
 Where the reference asks for more than the actuator reaches, λ is held inside the
@@ -67,13 +68,17 @@ def inverse_input(tracking: Tracking, reference: Reference, reach: Reach) -> Inv
     lam_lo, lam_hi = reach.lam
     held = np.clip(lam, lam_lo, lam_lo + (lam_hi - lam_lo) * (1.0 - 1e-6))
     M = np.asarray(magnetization_for_magnetostriction(jnp.asarray(held), p, reach.sign))
-    ramp = M[0] * np.arange(tracking.n_ramp) / tracking.n_ramp
+    # the static model's magnetization that M relaxes from (the after-effect,
+    # τ_M·dM/dt = M_s − M): M itself without it
+    tau = 0.0 if model.losses is None else float(model.losses.relax)
+    Ms = M + tau * _rate(M, t, dt, reference.periodic) if tau > 0 else M
+    ramp = Ms[0] * np.arange(tracking.n_ramp) / tracking.n_ramp
     if reference.periodic:
         K = INVERSE_RUN_IN_PERIODS
-        path = np.concatenate([ramp, np.tile(M, K + 1)])
+        path = np.concatenate([ramp, np.tile(Ms, K + 1)])
         start = tracking.n_ramp + K * N
     else:
-        path = np.concatenate([ramp, np.full(tracking.hold, M[0]), M])
+        path = np.concatenate([ramp, np.full(tracking.hold, Ms[0]), Ms])
         start = tracking.n_ramp + tracking.hold
     H = np.asarray(_field(p, jnp.asarray(path), model.variant, model.substeps))[start:]
     if model.losses is not None:

@@ -45,7 +45,7 @@ class Reach(eqx.Module):
 
 @eqx.filter_jit
 def _sweep_magnetization(p, H, variant, substeps):
-    M_sub, _, _ = hysteresis_path(variant, p, None, H, substeps=substeps)
+    M_sub, _, _, _ = hysteresis_path(variant, p, None, H, substeps=substeps)
     return M_sub[:, -1]
 
 

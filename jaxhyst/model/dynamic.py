@@ -22,6 +22,21 @@ the anhysteretic's stability) the guess takes the vacuum's slope, and a Newton s
 skipped where G does not fall with h_{n+1}: the values stay finite and in the bracket.
 Within an interval h is taken linear in time for the structural forcing.
 
+**The after-effect** (``Losses.relax`` = τ_M: τ_M·dM/dt = M_s − M, M_s the static form's
+magnetization along h). Over an interval M_s is taken linear in time (slope
+s = (M_s,n+1 − M_s,n)/Δt), for which the relaxation is exact: with the rate deficit
+Q = (M_s − M)/τ_M carried in the state and e = exp(−Δt/τ_M),
+
+    Q_{n+1} = s·(1 − e) + Q_n·e,   M = M_s − τ_M·Q,
+
+free of cancellation as τ_M → 0 (e → 0, Q → s, M → M_s: the model without it, to
+round-off at τ_M = 0). The balance's B is the relaxed one, so its root need not lie
+between h_n and H_n + H_{n+1} − h_n: the bracket is taken from the balance's value at
+h_{n+1} = h_n instead (closed form: there M changes by τ_M·Q_n·(1 − e)), which the
+balance's fall with h_{n+1} makes a bracket again. Inside the interval, M at the substep
+points (elapsed time θ·Δt) is M_s there minus τ_M·Q(θ), Q(θ) = s·(1 − e_θ) + Q_n·e_θ
+(`relaxed`), second order in the sample step like the balance.
+
 **The time loop** is the skeleton of `jaxhyst.model.timeloop`, with `RateDependentPath`
 as its form: the state is the static form's state and h, and its derivative rule, batch
 rule and accelerator form are the skeleton's. The derivatives of h_{n+1} are the
@@ -39,26 +54,38 @@ import jax.numpy as jnp
 
 from ..params import MU0
 from .interval import on_accelerator
-from .losses import LOSS_NAMES, dynamic_field
+from .losses import LOSS_NAMES, decay, dynamic_field
 from .timeloop import AbstractPathForm, Interval
 
 #: Newton steps per sample interval after the closed-form first guess.
 NEWTON_STEPS = 4
 
 
-def _balance(inner, S, batched, p, losses, H0, H1, dt, state, h0, h1):
+def relaxed_deficit(tau, dt, s, Q0):
+    """The after-effect's rate deficit Q = (M_s − M)/τ_M (A/(m·s)) after ``dt`` (s) from
+    ``Q0``, M_s rising at ``s`` (A/(m·s)) meanwhile (module docstring)."""
+    e = decay(tau, dt)
+    return s * (1.0 - e) + Q0 * e
+
+
+def _balance(inner, S, batched, p, losses, H0, H1, dt, state, Q0, h0, h1):
     """The interval's field balance G(h_{n+1}) (A/m): zero at the solution."""
-    M0 = inner.magnetization(state)
-    M1 = inner.end_magnetization(p, h0, h1, state, S, batched)
+    Ms0 = inner.magnetization(state)
+    Ms1 = inner.end_magnetization(p, h0, h1, state, S, batched)
+    Q1 = relaxed_deficit(losses.relax, dt, (Ms1 - Ms0) / dt, Q0)
+    M0, M1 = Ms0 - losses.relax * Q0, Ms1 - losses.relax * Q1
     rate = (MU0 * (h1 + M1) - MU0 * (h0 + M0)) / dt
     return 0.5 * (H0 + H1) - 0.5 * (h0 + h1) - dynamic_field(rate, losses, (h1 - h0) / dt)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
-def _end_field(inner, S, batched, p, losses, H0, H1, dt, state, h0):
+def _end_field(inner, S, batched, p, losses, H0, H1, dt, state, Q0, h0):
     """h_{n+1}: the root of `_balance` (module docstring). Its derivative is the implicit
     function's, dh = −∂G/∂(inputs)·d(inputs) / ∂G/∂h (not Newton's steps differentiated)."""
-    R = 0.5 * (H0 + H1) - h0  # the balance's left side at h_{n+1} = h_n
+    # the balance at h_{n+1} = h_n (where only the after-effect moves M)
+    tau = losses.relax
+    drift = MU0 * tau * Q0 * (1.0 - decay(tau, dt)) / dt
+    R = 0.5 * (H0 + H1) - h0 - dynamic_field(drift, losses)
     lo, hi = jnp.minimum(h0, h0 + 2.0 * R), jnp.maximum(h0, h0 + 2.0 * R)
     # first guess: dB/dh frozen at its start value, the quadratic in √|Δh| solved exactly
     slope = jax.vmap(inner.slope) if batched else inner.slope
@@ -66,6 +93,7 @@ def _end_field(inner, S, batched, p, losses, H0, H1, dt, state, h0):
     # (a slope that is not finite or below −1 — a feedback α·Ms beyond the anhysteretic's
     # stability — gives no usable guess: start from the vacuum's)
     chi = jnp.where(jnp.isfinite(chi) & (chi > -1.0), chi, 0.0)
+    chi = chi * (1.0 - tau * (1.0 - decay(tau, dt)) / dt)  # (the relaxed share of dM_s)
     c = MU0 * (1.0 + chi) / dt
     a = 0.5 + losses.eddy * c + losses.lag / dt
     b = losses.excess * jnp.sqrt(jnp.maximum(c, 0.0))
@@ -75,7 +103,7 @@ def _end_field(inner, S, batched, p, losses, H0, H1, dt, state, h0):
     h1 = jnp.clip(h0 + jnp.where(moving, jnp.sign(R) * s * s, 0.0), lo, hi)
 
     def balance(h1):
-        return _balance(inner, S, batched, p, losses, H0, H1, dt, state, h0, h1)
+        return _balance(inner, S, batched, p, losses, H0, H1, dt, state, Q0, h0, h1)
 
     def newton(_, h1):
         G, dG = jax.jvp(balance, (h1,), (jnp.ones_like(h1),))
@@ -118,7 +146,7 @@ class RateDependentPath(AbstractPathForm):
 
     @property
     def state_size(self) -> int:
-        return self.inner.state_size + 1
+        return self.inner.state_size + 2
 
     @property
     def parameters(self) -> tuple[str, ...]:
@@ -126,16 +154,36 @@ class RateDependentPath(AbstractPathForm):
 
     def initial_state(self, theta, H0):
         inner_theta, _ = theta
-        return jnp.concatenate([self.inner.initial_state(inner_theta, H0), H0[..., None]],
-                               axis=-1)
+        return jnp.concatenate([self.inner.initial_state(inner_theta, H0),
+                                jnp.zeros_like(H0)[..., None], H0[..., None]], axis=-1)
 
     def state_rows(self, substeps: int) -> tuple[int, ...]:
-        return (*self.inner.state_rows(substeps), self.inner.n_outputs(substeps))
+        n = self.inner.n_outputs(substeps)
+        return (*self.inner.state_rows(substeps), n, n + 1)
 
     def interval(self, theta, x: Interval, state, substeps: int, batched: bool):
         p, losses = theta  # (p: the inner form's parameters)
-        inner_state, h0 = state[..., :-1], state[..., -1]
+        inner_state, Q0, h0 = state[..., :-2], state[..., -2], state[..., -1]
         h1 = _end_field(self.inner, substeps, batched, p, losses, x.H0, x.H1, x.dt,
-                        inner_state, h0)
+                        inner_state, Q0, h0)
         out = self.inner.advance(p, h0, h1, inner_state, x.delta, substeps, batched)
-        return jnp.concatenate([out, h1[..., None]], axis=-1)
+        following = out[..., jnp.asarray(self.inner.state_rows(substeps))]
+        slope = (self.inner.magnetization(following) - self.inner.magnetization(
+            inner_state)) / x.dt
+        Q1 = relaxed_deficit(losses.relax, x.dt, slope, Q0)
+        return jnp.concatenate([out, Q1[..., None], h1[..., None]], axis=-1)
+
+
+def relaxed(tau, t, Y_sub, Q, S: int):
+    """The after-effect inside each interval (module docstring): from the static form's
+    M_s at the substep points u_1 … u_S, ``Y_sub`` (N, S), M_s = 0 at the first sample,
+    and the rate deficit ``Q`` at the samples (N + 1,), ``(M_sub (N, S), dM (N, S + 1))``:
+    the relaxed M at u_1 … u_S, and what to add to dM_s/dt at u_0 … u_S for dM/dt
+    (−e_θ·(s − Q_n); zero at τ_M = 0)."""
+    dt = jnp.diff(t)
+    ends = jnp.concatenate([jnp.zeros_like(Y_sub[:1, -1]), Y_sub[:, -1]])
+    s = jnp.diff(ends) / dt
+    theta = jnp.arange(S + 1, dtype=Y_sub.dtype) / S
+    e = decay(tau, theta * dt[:, None])  # (N, S + 1)
+    deficit = s[:, None] * (1.0 - e[:, 1:]) + Q[:-1, None] * e[:, 1:]
+    return Y_sub - tau * deficit, -e * (s - Q[:-1])[:, None]

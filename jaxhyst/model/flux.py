@@ -20,7 +20,8 @@ taken at each sample with the mean of the rates of its two neighbouring interval
 (second order for a smooth B). The energy per cycle and volume is exact for that B: the
 static part ∮ H_hyst dB by the cubic Hermite rule on each RK4 piece (H_hyst and its
 slope dH_hyst/dB = 1/μ0 − dM/dB at both ends: 4th order, like RK4), the loss part by
-`jaxhyst.model.losses.dynamic_energy` per interval.
+`jaxhyst.model.losses.dynamic_energy` per interval. The after-effect (``Losses.relax``)
+is not in this model: `simulate_flux` refuses it, `simulate_flux_unchecked` gives NaN.
 """
 
 from __future__ import annotations
@@ -164,7 +165,7 @@ def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
     S = int(substeps)
     losses = Losses() if losses is None else losses
     B, t = drive.B, drive.t
-    M_sub, k_sub, _ = hysteresis_path(variant, params, None, B, substeps=S, driver="B")
+    M_sub, k_sub, _, _ = hysteresis_path(variant, params, None, B, substeps=S, driver="B")
     zero = jnp.zeros((1,), dtype=B.dtype)
     M = jnp.concatenate([zero, M_sub[:, -1]])
     H_hyst = B / MU0 - M
@@ -182,7 +183,9 @@ def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
         + dynamic_energy(jnp.diff(B), jnp.diff(t), losses, jnp.diff(H_hyst))
     energy = jnp.sum(per_interval[drive.run_in:])
     Man, _ = anhysteretic(H_hyst, M, params)
-    bad = ~physically_valid(params)  # (NaN for an impossible parameter set, under jit too)
+    # (NaN for an impossible parameter set, under jit too, and for the after-effect,
+    # which this model does not have: never a plausible-looking answer without it)
+    bad = ~physically_valid(params) | (losses.relax > 0)
     H, energy = jnp.where(bad, jnp.nan, H), jnp.where(bad, jnp.nan, energy)
     return FluxSimulation(t=t, B=B, H=H, H_hyst=H_hyst, M=M, Man=Man, cycle_energy=energy,
                           run_in=drive.run_in)
@@ -212,6 +215,11 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
         raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess, lag); got {losses!r}.")
     if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
         raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
+    if losses is not None and is_concrete(losses.relax) and np.any(
+            np.asarray(losses.relax) > 0):
+        raise ValueError(f"simulate_flux: Losses.relax = {np.asarray(losses.relax)} s, but "
+                         "the B-driven model has no after-effect; drive the model by H "
+                         "(jaxhyst.simulate) or set relax=0.")
     if jnp.ndim(drive.B) != 1:
         raise ValueError(f"simulate_flux takes one drive, but drive.B has shape "
                          f"{jnp.shape(drive.B)}; for a batch of drives use jax.vmap("

@@ -45,7 +45,7 @@ def field_for_magnetization(p: Parameters, M: Float[Array, " T"],
     magnetization ``M`` (A/m), shape (T,), piecewise linear between samples, from the
     demagnetized state: M[0] must be 0 (start with a ramp from 0). Differentiable (the
     time loop's derivative rule) and batched under ``jax.vmap``."""
-    H_sub, _, _ = hysteresis_path(variant, p, None, M, substeps=substeps, driver="M")
+    H_sub, _, _, _ = hysteresis_path(variant, p, None, M, substeps=substeps, driver="M")
     return jnp.concatenate([jnp.zeros((1,), dtype=H_sub.dtype), H_sub[:, -1]])
 
 

@@ -10,9 +10,16 @@ fields set by the rate of change of the flux density B and of that field itself:
     H_lag  = τ·dH_hyst/dt                   (relaxation: the hysteresis field follows the
                                              applied field with a time constant τ),
 
-with M = JA(H_hyst history) and B = μ0·(H_hyst + M). The energy per cycle and volume
-∮ H dB is then the static loop's area plus k_e·∫(dB/dt)² dt plus k_x·∫|dB/dt|^(3/2) dt
-plus τ·∫(dH_hyst/dt)(dB/dt) dt.
+with M_s = JA(H_hyst history) the static model's magnetization and B = μ0·(H_hyst + M),
+where M = M_s without ``relax``; with it (τ_M > 0) the magnetization relaxes towards the
+static one, a magnetic after-effect:
+
+    τ_M·dM/dt = M_s − M                     (M lags M_s with the time constant τ_M),
+
+so that B keeps rising after the field turns and a loop widens with frequency, without a
+field of its own. The energy per cycle and volume ∮ H dB is then the static loop's area
+plus k_e·∫(dB/dt)² dt plus k_x·∫|dB/dt|^(3/2) dt plus τ·∫(dH_hyst/dt)(dB/dt) dt (with
+relax, ∮ H_hyst dB along the relaxed B: the after-effect's loss is in that area).
 
 The eddy field is proportional to the rate of B, so it is large where the permeability
 is (the steep part of a loop); the lag field is proportional to the rate of the
@@ -24,7 +31,7 @@ proportional to the field in excess of the static one, here with the rate consta
 For a lamination of thickness d and conductivity σ the classical coefficient is
 k_e = σd²/12, for a round rod of radius r it is σr²/8 (`eddy_coefficient`); k_x is
 √(σ·G·V0·S) in Bertotti's statistical theory (S the cross-section, G ≈ 0.1356, V0 a
-material constant) and is in practice identified from data. With k_e = k_x = τ = 0
+material constant) and is in practice identified from data. With k_e = k_x = τ = τ_M = 0
 both forms are the static model itself.
 
 This is the field-separation form of the dynamic Jiles–Atherton model (Jiles, J. Appl.
@@ -42,9 +49,9 @@ from .._typing import Real
 from ..params import is_concrete
 
 #: The loss coefficients by name, in the order of `Losses`' fields.
-LOSS_NAMES = ("eddy", "excess", "lag")
+LOSS_NAMES = ("eddy", "excess", "lag", "relax")
 #: Their units.
-LOSS_UNITS = {"eddy": "A*s/(m*T)", "excess": "A*s^0.5/(m*T^0.5)", "lag": "s"}
+LOSS_UNITS = {"eddy": "A*s/(m*T)", "excess": "A*s^0.5/(m*T^0.5)", "lag": "s", "relax": "s"}
 
 
 #: The largest loss coefficient accepted (SI): a lamination of copper 0.1 m thick has
@@ -53,7 +60,8 @@ MAX_COEFFICIENT = 1e6
 #: The largest relaxation time accepted (s): a lag of an hour is a unit mistake.
 MAX_LAG = 3600.0
 #: The largest value of each coefficient (SI).
-LOSS_LIMITS = {"eddy": MAX_COEFFICIENT, "excess": MAX_COEFFICIENT, "lag": MAX_LAG}
+LOSS_LIMITS = {"eddy": MAX_COEFFICIENT, "excess": MAX_COEFFICIENT, "lag": MAX_LAG,
+               "relax": MAX_LAG}
 
 
 class Losses(eqx.Module):
@@ -62,7 +70,11 @@ class Losses(eqx.Module):
     - ``eddy``: k_e, A/m per T/s (H_eddy = k_e·dB/dt); ≥ 0;
     - ``excess``: k_x, A/m per (T/s)^(1/2) (H_exc = k_x·sign(Ḃ)·|Ḃ|^(1/2)); ≥ 0;
     - ``lag``: τ, s (H_lag = τ·dH_hyst/dt: the hysteresis field relaxes towards the
-      applied field with time constant τ); ≥ 0.
+      applied field with time constant τ); ≥ 0;
+    - ``relax``: τ_M, s (τ_M·dM/dt = M_s − M: the magnetization relaxes towards the
+      static model's with time constant τ_M, a magnetic after-effect); ≥ 0. In the
+      H-driven model and `compensate`'s inverse; the B-driven model
+      (`jaxhyst.simulate_flux`) does not have it.
 
     Arrays (data, differentiable); leaves of shape (P,) for a batch. The pair
     ``(Parameters, Losses)`` is the parameter pytree of the rate-dependent model in
@@ -72,20 +84,23 @@ class Losses(eqx.Module):
     eddy: Real
     excess: Real
     lag: Real
+    relax: Real
 
-    def __init__(self, eddy=0.0, excess=0.0, lag=0.0):
-        for name, value in (("eddy", eddy), ("excess", excess), ("lag", lag)):
+    def __init__(self, eddy=0.0, excess=0.0, lag=0.0, relax=0.0):
+        for name, value in (("eddy", eddy), ("excess", excess), ("lag", lag),
+                            ("relax", relax)):
             if is_concrete(value):
                 v = np.asarray(value, dtype=np.float64)
                 top = LOSS_LIMITS[name]
                 if not (np.all(np.isfinite(v)) and np.all(v >= 0) and np.all(v <= top)):
-                    hint = ("an hour is a unit mistake" if name == "lag" else
+                    hint = ("an hour is a unit mistake" if name in ("lag", "relax") else
                             "a 0.1 m copper lamination's eddy coefficient is 5e4")
                     raise ValueError(f"Losses.{name} must lie in [0, {top:g}] "
                                      f"({LOSS_UNITS[name]}; {hint}); got {value!r}.")
         self.eddy = jnp.asarray(eddy, dtype=jnp.float64)
         self.excess = jnp.asarray(excess, dtype=jnp.float64)
         self.lag = jnp.asarray(lag, dtype=jnp.float64)
+        self.relax = jnp.asarray(relax, dtype=jnp.float64)
 
 
 def _signed_sqrt(rate):
@@ -93,6 +108,14 @@ def _signed_sqrt(rate):
     nonzero = rate != 0
     safe = jnp.where(nonzero, jnp.abs(rate), 1.0)
     return jnp.where(nonzero, jnp.sign(rate) * jnp.sqrt(safe), 0.0)
+
+
+def decay(tau, dt):
+    """exp(−dt/τ) (dt ≥ 0 and τ ≥ 0 in s): 1 at dt = 0 for τ > 0, and 0 for τ = 0 at
+    every dt (also where exp(−dt/τ) underflows, τ < dt/700), with finite derivatives
+    everywhere (zero where it underflows)."""
+    live = tau > dt / 700.0
+    return jnp.where(live, jnp.exp(-dt / jnp.where(live, tau, 1.0)), 0.0)
 
 
 def dynamic_field(rate, losses: Losses, field_rate=0.0):

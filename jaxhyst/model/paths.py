@@ -16,7 +16,7 @@ import jax.numpy as jnp
 
 from ..params import NAMES, UNITS, Parameters
 from .drivers import FluxDriven, MagnetizationDriven
-from .dynamic import RateDependentPath
+from .dynamic import RateDependentPath, relaxed
 from .jiles_atherton import AbstractJAVariant
 from .losses import LOSS_NAMES, LOSS_UNITS, Losses
 from .magnetization import JAPath
@@ -131,11 +131,13 @@ def hysteresis_path(form, p, t, drive, *, substeps: int, losses=None, driver: st
     A/m, B in T or M in A/m by ``driver``; ``t`` in s, needed with ``losses``), from the
     demagnetized state.
 
-    **Returns:** ``(Y_sub, k_sub, h)``: the response at the substep points u_1 … u_S of
-    each interval, shape (N, S) (M for the drivers H and B, H for M), its slope along the
-    driver at u_0 … u_S with the interval's direction, shape (N, S + 1), and the field
+    **Returns:** ``(Y_sub, k_sub, h, dY)``: the response at the substep points u_1 … u_S
+    of each interval, shape (N, S) (M for the drivers H and B, H for M), its slope along
+    the driver at u_0 … u_S with the interval's direction, shape (N, S + 1), the field
     the hysteresis sees at the samples, shape (T,) (the drive itself without losses; the
-    field h of the rate-dependent model with them, `jaxhyst.model.dynamic`).
+    field h of the rate-dependent model with them, `jaxhyst.model.dynamic`), and None —
+    or, with losses, what the after-effect adds to the rate k_sub·dh/dt at u_0 … u_S
+    (A/(m·s), shape (N, S + 1); ``Y_sub`` is then the relaxed M, `dynamic.relaxed`).
     """
     S = int(substeps)
     theta = loop_parameters(form, p)
@@ -143,12 +145,14 @@ def hysteresis_path(form, p, t, drive, *, substeps: int, losses=None, driver: st
         loop = path_form(form, driver)
         out = run_path(theta, t, drive, form=loop, substeps=S)
         Y_sub, k_sub = loop.split(out, theta, drive, S)
-        return Y_sub, k_sub, drive
+        return Y_sub, k_sub, drive, None
     if driver != "H":
         raise ValueError("the loss terms enter the H-driven path here; the B-driven model "
                          "adds them to its field (jaxhyst.simulate_flux).")
     inner = path_form(form, "H", end_slope_here=True)
     out = run_path((theta, losses), t, drive, form=RateDependentPath(inner), substeps=S)
     h = jnp.concatenate([drive[:1], out[:, -1]])
-    Y_sub, k_sub = inner.split(out[:, :-1], theta, h, S)
-    return Y_sub, k_sub, h
+    Q = jnp.concatenate([jnp.zeros_like(drive[:1]), out[:, -2]])
+    Y_sub, k_sub = inner.split(out[:, :-2], theta, h, S)
+    Y_sub, dY = relaxed(losses.relax, t, Y_sub, Q, S)
+    return Y_sub, k_sub, h, dY

@@ -122,9 +122,13 @@ def _simulate(params, actuator, drive, variant, substeps, losses=None) -> Simula
     """The simulation itself (`simulate_unchecked`)."""
     S = _static_substeps(substeps)
     # rate independent, or the rate-dependent loop with losses (`jaxhyst.model.dynamic`)
-    M_sub, k_sub, H_hyst = hysteresis_path(variant, params, drive.t, drive.H, substeps=S,
-                                           losses=losses)
-    args = (variant, params, actuator.Ar, drive.t, H_hyst, M_sub, k_sub)
+    M_sub, k_sub, H_hyst, dM = hysteresis_path(variant, params, drive.t, drive.H,
+                                               substeps=S, losses=losses)
+    # dM/dt at the substep points u_0 … u_S: the slope along h times h's rate, and the
+    # after-effect's share where it relaxes M
+    rate = k_sub * ((jnp.diff(H_hyst) / S) / (jnp.diff(drive.t) / S))[:, None]
+    rate = rate if dM is None else rate + dM
+    args = (variant, params, actuator.Ar, drive.t, H_hyst, M_sub, rate)
     periodic_from = drive.run_in if drive.periodic else None
     if under_vmap() and not _PLAIN_VMAP:  # its batch rule in blocks
         M, Man, Mirr, lam, y, v = blocked_under_vmap(
@@ -160,10 +164,11 @@ def plain_vmap():
         _PLAIN_VMAP.pop()
 
 
-def _after_the_loop(variant, p, Ar, t, H, M_sub, k_sub, uniform: bool, S: int,
+def _after_the_loop(variant, p, Ar, t, H, M_sub, dM_dt, uniform: bool, S: int,
                     periodic_from: int | None = None):
-    """Every signal but t and H from the magnetization path (`magnetization_path`'s
-    M_sub (N, S) and k_sub (N, S + 1)): (M, Man, Mirr, λ, y, ẏ) at the samples, shape (T,)
+    """Every signal but t and H from the magnetization path (M_sub (N, S) at the substep
+    points u_1 … u_S and dM_dt (N, S + 1) at u_0 … u_S, A/(m·s)): (M, Man, Mirr, λ, y, ẏ)
+    at the samples, shape (T,)
     each. y and ẏ come from λ and dλ/dt at the substep points, their cubic Hermite
     forcing and the structural recurrence (exact for that forcing). ``periodic_from``:
     the first observed sample of a periodic drive (`Drive.periodic`); from there on the
@@ -172,10 +177,9 @@ def _after_the_loop(variant, p, Ar, t, H, M_sub, k_sub, uniform: bool, S: int,
     M = jnp.concatenate([zero, M_sub[:, -1]])
     M_points = jnp.concatenate([M[:-1, None], M_sub], axis=1)  # u_0 … u_S, (N, S + 1)
     h = jnp.diff(t) / S  # substep length, s
-    dH_dt = (jnp.diff(H) / S) / h  # A/m per s, constant over an interval
     m = M_points / p.Ms
     lam = 1.5 * p.lambda_s * m * m
-    dlam = 3.0 * p.lambda_s * m * (k_sub * dH_dt[:, None] / p.Ms)
+    dlam = 3.0 * p.lambda_s * m * (dM_dt / p.Ms)
     force_gain = Ar * p.E / p.Mz  # u = Ar·E·λ/Mz, m/s² per unit λ
     w = force_gain * hermite_taylor_coefficients(lam[:, :-1], dlam[:, :-1], lam[:, 1:],
                                                  dlam[:, 1:], h[:, None])  # (N, S, 4)
