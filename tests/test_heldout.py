@@ -95,6 +95,8 @@ def test_a_fold_that_stops_short_sets_exit_3_and_is_named(tmp_path, capsys):
     (["--vary", "k:log_amplitude", "--vary-degree", "2", "--variant", "play"],
      "give at least 4 loops"),
     (["--variant", "play,nonsense"], "the forms are"),
+    (["--variant", "play+nonsense"], "the forms are"),
+    (["--variant", "classic,play+relax"], "loss coefficients need times"),
 ])
 def test_comparisons_that_cannot_be_made_get_one_line(tmp_path, capsys, argv, message):
     data = tmp_path / "loops.csv"
@@ -125,3 +127,33 @@ def test_the_summary_says_when_the_nearest_loops_fit_predicts_better():
     assert "BASELINE BETTER" in held_out_text(held)
     held["forms"]["classic"]["nearest_score"] = 0.05
     assert "BASELINE BETTER" not in held_out_text(held)
+
+
+def test_a_candidate_carries_its_own_loss_terms_into_the_folds_and_the_final_fit(
+        tmp_path, capsys):
+    """``--variant classic+relax``: every fold and the final fit are the rate-dependent
+    model with the after-effect free (its quality on a family made by an after-effect is
+    measured in benchmarks/bench_heldout_forms.py, not here: a few steps only)."""
+    lines = ["loop,t_s,H_A_per_m,B_T"]
+    for i, f in enumerate((50.0, 200.0)):
+        drive = jh.sinusoidal_field(f, 120.0, 0.0, samples_per_period=40)
+        with pytest.warns(jh.identify.SamplingWarning):  # (coarse: the plumbing is tested)
+            sim = jh.simulate(TRUTH, NO_ACTUATOR, drive, jh.ClassicJA(),
+                              losses=jh.Losses(relax=3e-4))
+        t, H = (np.asarray(drive.observed(x)) for x in (drive.t, drive.H))
+        B = MU0 * (np.asarray(sim.observed("H_hyst")) + np.asarray(sim.observed("M")))
+        lines += [f"{i},{a - t[0]:.10g},{h:.10g},{b:.10g}"
+                  for a, h, b in zip(t, H, B, strict=True)]
+    data = tmp_path / "freq.csv"
+    data.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "r.json"
+    main(["identify", str(data), *COMMON, "--variant", "classic+relax", "--starts", "2",
+          "--max-steps", "3", "--out", str(out)])
+    result = json.loads(out.read_text())
+    held = result["leave_one_out"]
+    assert list(held["forms"]) == ["classic+relax"] and held["kept"] == "classic+relax"
+    assert [r["loop"] for r in held["forms"]["classic+relax"]["rows"]] == [0, 1]
+    assert all("relax" in r["extra_bounds"] for r in held["forms"]["classic+relax"]["rows"])
+    assert result["problem"]["variant"] == "classic"
+    assert result["problem"]["losses"] == ["relax"]
+    assert np.all(np.asarray(result["params"]["relax"]["value"]) > 0)

@@ -98,7 +98,15 @@ def _predict(spec, problem, params, loop):
             "_curve": (predicted, data)}
 
 
-def rate_note(spec, loops) -> str | None:
+def candidate_spec(args, candidate: str) -> dict:
+    """The spec entries of a candidate of --variant: ``form`` or ``form+loss+…`` → its
+    form and loss coefficients (--losses' and its own)."""
+    form, *own = candidate.split("+")
+    given = [n.strip() for n in (args.losses or "").split(",") if n.strip()]
+    return {"variant": form, "losses": [*given, *(n for n in own if n not in given)]}
+
+
+def rate_note(spec, loops, candidates=()) -> str | None:
     """Where the loops were measured at frequencies more than 10 % apart and nothing in
     the model depends on the rate (no loss coefficients, no law in the frequency): what
     that means and the options that change it; else None."""
@@ -106,6 +114,7 @@ def rate_note(spec, loops) -> str | None:
 
     f = [lp.conditions.get("frequency") for lp in loops]
     if len(loops) < 2 or any(v is None for v in f) or spec.get("losses") or \
+            any("+" in c for c in candidates) or \
             any("log_f" in feats for feats in parse_vary(spec.get("vary")).values()):
         return None
     lo, hi = min(f), max(f)
@@ -113,8 +122,9 @@ def rate_note(spec, loops) -> str | None:
         return None
     return (f"the loops were measured at {lo:.4g}–{hi:.4g} Hz and the model is rate "
             "independent: it draws every frequency alike. --losses eddy,excess,lag,relax adds "
-            "the rate-dependent model (the file needs times; relax: H-driven); --vary "
-            "P:log_f a law in the frequency")
+            "the rate-dependent model (the file needs times; relax: H-driven), --variant "
+            "play+eddy+excess,play+relax compares mechanisms; --vary P:log_f a law in the "
+            "frequency")
 
 
 def check_comparison(spec, loops, forms) -> None:
@@ -131,8 +141,14 @@ def check_comparison(spec, loops, forms) -> None:
                 "every fold needs a loop to fit and one to predict")
         raise CLIError(f"--leave-one-out: {spec['data']} holds {L} loop"
                        f"{'s' if L != 1 else ''}; {what}, so give at least {need} loops.")
+    timed = [f for f in forms if "+" in f]
+    untimed = [lp.index for lp in loops if lp.t is None]
+    if timed and untimed:
+        raise CLIError(f"--variant {timed[0]}: loss coefficients need times, and loop "
+                       f"{untimed[0]} of {spec['data']} has no t column; compare forms "
+                       "without them or give times.")
     own = [n for n in vary if n in ("spread", "a_rev")]
-    plain = [f for f in forms if f not in ("play", "preisach")]
+    plain = [f for f in forms if f.split("+")[0] not in ("play", "preisach")]
     if own and plain:
         raise CLIError(f"--vary {own[0]}: only the forms of pinning cells (play, preisach) "
                        f"have it, and the comparison includes {plain}; name the forms with "
@@ -147,7 +163,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
     conditions = _conditions(spec, loops)
     table, partial, short, curves = {}, False, [], {}
     for form in forms:
-        spec_f = {**spec, "variant": form}
+        spec_f = {**spec, **candidate_spec(args, form)}
         own = []
         for lp in loops:
             if stop_requested():

@@ -12,6 +12,7 @@ from .fitting import decimated_first, fit_by_options, widen_derived_box
 from .flux_fit import check_flux_options, flux_figure
 from .heldout import (
     CANDIDATES,
+    candidate_spec,
     check_comparison,
     held_out_figure,
     held_out_text,
@@ -86,7 +87,9 @@ def add_parser(sub) -> None:
                         "the paper's Jiles–Atherton form, the default; play and preisach: "
                         "forms of pinning cells with return-point memory, their own "
                         "parameter 'spread'); with --leave-one-out a comma-separated list "
-                        "to compare (default there: " + ",".join(CANDIDATES) + ")")
+                        "to compare (default there: " + ",".join(CANDIDATES) + "); a form "
+                        "may carry loss coefficients of its own, e.g. play+relax or "
+                        "play+eddy+excess (the mechanisms compared by held-out error)")
     parser.add_argument("--cells", type=POSITIVE_INT, default=DEFAULT_CELLS,
                         help="pinning cells of the forms play and preisach")
     parser.add_argument("--losses", help="loss coefficients to identify with the "
@@ -229,7 +232,7 @@ def run(args) -> int:
         note("identify", f"read {sum(lp.n_samples for lp in loops)} samples in "
                          f"{len(loops)} loop{'s' if len(loops) > 1 else ''}")
     forms = _forms(args)
-    spec["variant"] = forms[0]
+    spec.update(candidate_spec(args, forms[0]))
     if args.leave_one_out:
         check_comparison(spec, loops, forms)
     bounds, extra, where = resolve_bounds(spec, given, loops)
@@ -242,7 +245,7 @@ def run(args) -> int:
     if method not in HYBRID and (args.checkpoint or args.resume):
         raise CLIError(f"--checkpoint/--resume apply to the hybrid GAs; --method {method} is a "
                        "local solve (not checkpointed: rerun it).")
-    rate = rate_note(spec, loops) if args.progress and spec.get("joint") else None
+    rate = rate_note(spec, loops, forms) if args.progress and spec.get("joint") else None
     if rate:
         note("identify", rate)
     held = curves = None
@@ -251,8 +254,8 @@ def run(args) -> int:
         curves = held.pop("_curves")
         if held["partial"]:
             return _interrupted(args, spec, held)
-        if held["kept"] != spec["variant"]:
-            spec["variant"] = held["kept"]
+        if held["kept"] != forms[0]:
+            spec.update(candidate_spec(args, held["kept"]))
             bounds, extra, where = resolve_bounds(spec, given, loops)
             spec["bounds"] = bounds_to_json(bounds)
             spec["extra_bounds"] = {n: list(v) for n, v in extra.items()}
@@ -315,12 +318,19 @@ def run(args) -> int:
 
 
 def _forms(args) -> list[str]:
-    """The forms --variant names (a list with --leave-one-out; the candidates if none)."""
+    """The candidates --variant names (a list with --leave-one-out; the documented ones if
+    none): a form, or a form with loss coefficients of its own, ``play+relax``."""
     if args.variant is None:
         return list(CANDIDATES) if args.leave_one_out else ["energy"]
     forms = [f.strip() for f in args.variant.split(",") if f.strip()]
-    bad = [f for f in forms if f not in VARIANTS]
-    if bad or not forms:
+    for f in forms:
+        form, *losses = f.split("+")
+        if form not in VARIANTS or any(n not in LOSS_NAMES for n in losses) or \
+                len(set(losses)) != len(losses):
+            raise CLIError(f"--variant {args.variant!r}: the forms are "
+                           f"{', '.join(VARIANTS)}, each optionally with loss coefficients "
+                           f"of its own from {', '.join(LOSS_NAMES)} (e.g. play+relax).")
+    if not forms:
         raise CLIError(f"--variant {args.variant!r}: the forms are {', '.join(VARIANTS)}.")
     if len(forms) > 1 and not args.leave_one_out:
         raise CLIError(f"--variant {args.variant}: several forms are compared only by "
