@@ -29,6 +29,9 @@ The files:
   the periodic state solved exactly by Fourier series) and 0.2 % noise, fitted with
   ``--losses eddy,excess`` (run with ``--forms classic,play``: the Preisach form made
   the loops' static part).
+
+Candidates may carry loss terms of their own (``--forms play+eddy+excess,play+relax
+--losses ""``): one command then compares the mechanisms on the frequency families.
 """
 
 from __future__ import annotations

@@ -38,11 +38,11 @@ points (elapsed time θ·Δt) is M_s there minus τ_M·Q(θ), Q(θ) = s·(1 − 
 (`relaxed`), second order in the sample step like the balance.
 
 **The time loop** is the skeleton of `jaxhyst.model.timeloop`, with `RateDependentPath`
-as its form: the state is the static form's state and h, and its derivative rule, batch
-rule and accelerator form are the skeleton's. The derivatives of h_{n+1} are the
-implicit function's (at the converged root, not Newton's steps differentiated). Any form
-with an interval map along the hysteresis field plugs in (`JAPath` for the Jiles–Atherton
-variants).
+as its form: the state is the static form's state, the after-effect's Q and h, and its
+derivative rule, batch rule and accelerator form are the skeleton's. The derivatives of
+h_{n+1} are the implicit function's (at the converged root, not Newton's steps
+differentiated). Any form with an interval map along the hysteresis field plugs in
+(`JAPath` for the Jiles–Atherton variants).
 """
 
 from __future__ import annotations
@@ -134,9 +134,9 @@ class RateDependentPath(AbstractPathForm):
     """The field-separation model in the time loop (module docstring): ``inner`` is the
     static form along the hysteresis field h (`JAPath` with its own end slopes, or any
     form with ``advance``, ``magnetization``, ``end_magnetization``, ``slope`` and
-    ``n_outputs``); the state is ``inner``'s and h; the parameters are ``(inner's
-    parameters, Losses)``; the outputs of an interval are ``inner``'s and h_{n+1}
-    (the last)."""
+    ``n_outputs``); the state is ``inner``'s, Q (the after-effect's rate deficit) and h;
+    the parameters are ``(inner's parameters, Losses)``; the outputs of an interval are
+    ``inner``'s, Q_{n+1} and h_{n+1} (the last)."""
 
     inner: AbstractPathForm
 
@@ -174,14 +174,14 @@ class RateDependentPath(AbstractPathForm):
         return jnp.concatenate([out, Q1[..., None], h1[..., None]], axis=-1)
 
 
-def relaxed(tau, t, Y_sub, Q, S: int):
+def relaxed(tau, t, Y_sub, Q, S: int, M0):
     """The after-effect inside each interval (module docstring): from the static form's
-    M_s at the substep points u_1 … u_S, ``Y_sub`` (N, S), M_s = 0 at the first sample,
-    and the rate deficit ``Q`` at the samples (N + 1,), ``(M_sub (N, S), dM (N, S + 1))``:
-    the relaxed M at u_1 … u_S, and what to add to dM_s/dt at u_0 … u_S for dM/dt
-    (−e_θ·(s − Q_n); zero at τ_M = 0)."""
+    M_s at the substep points u_1 … u_S, ``Y_sub`` (N, S), M_s = ``M0`` at the first
+    sample, and the rate deficit ``Q`` at the samples (N + 1,), ``(M_sub (N, S), dM (N,
+    S + 1))``: the relaxed M at u_1 … u_S, and what to add to dM_s/dt at u_0 … u_S for
+    dM/dt (−e_θ·(s − Q_n); zero at τ_M = 0)."""
     dt = jnp.diff(t)
-    ends = jnp.concatenate([jnp.zeros_like(Y_sub[:1, -1]), Y_sub[:, -1]])
+    ends = jnp.concatenate([jnp.reshape(M0, (1,)), Y_sub[:, -1]])
     s = jnp.diff(ends) / dt
     theta = jnp.arange(S + 1, dtype=Y_sub.dtype) / S
     e = decay(tau, theta * dt[:, None])  # (N, S + 1)

@@ -154,5 +154,6 @@ def hysteresis_path(form, p, t, drive, *, substeps: int, losses=None, driver: st
     h = jnp.concatenate([drive[:1], out[:, -1]])
     Q = jnp.concatenate([jnp.zeros_like(drive[:1]), out[:, -2]])
     Y_sub, k_sub = inner.split(out[:, :-2], theta, h, S)
-    Y_sub, dY = relaxed(losses.relax, t, Y_sub, Q, S)
+    M0 = inner.magnetization(inner.initial_state(theta, drive[0]))
+    Y_sub, dY = relaxed(losses.relax, t, Y_sub, Q, S, M0)
     return Y_sub, k_sub, h, dY
