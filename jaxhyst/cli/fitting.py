@@ -106,8 +106,10 @@ def _report(args, quiet: bool):
     return "profile" if getattr(args, "intervals", "profile") == "profile" else True
 
 
-def fit_by_options(args, problem, method, start, quiet: bool = False):
-    """The fit the options ask for: a hybrid, one local solve, or a multi-start batch."""
+def fit_by_options(args, problem, method, start, quiet: bool = False, seeds=()):
+    """The fit the options ask for: a hybrid, one local solve, or a multi-start batch —
+    whose first starts are ``seeds`` (parameters of earlier fits, projected into the box;
+    at least one start stays random)."""
     import numpy as np
 
     import jaxhyst as jh
@@ -146,6 +148,8 @@ def fit_by_options(args, problem, method, start, quiet: bool = False):
         return jh.solve(problem, start, solver=method, max_steps=args.max_steps or 200,
                         progress=meter, report=_report(args, quiet))
     starts = np.random.default_rng(args.seed).uniform(0.0, 1.0, (args.starts, n))
+    for k, params in enumerate(list(seeds)[:args.starts - 1]):
+        starts[k] = np.asarray(problem.space.u_from_params(params))
     if progress:
         note(method, f"{len(starts)} random starts in one vmapped batch")
     return jh.multistart(problem, starts, solver=method, max_steps=args.max_steps or 200,

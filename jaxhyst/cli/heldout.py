@@ -58,9 +58,10 @@ def _conditions(spec, loops):
             for i in range(len(loops))]
 
 
-def _fit(args, spec, given, loops, method):
+def _fit(args, spec, given, loops, method, seeds=()):
     """A fit of ``loops`` as ``spec`` says, its box from these loops alone (widened
-    where the fit ends on a derived bound): (result, problem, spec as fitted)."""
+    where the fit ends on a derived bound), its first starts ``seeds`` (parameters):
+    (result, problem, spec as fitted)."""
     from jaxhyst.io import bounds_to_json
 
     from .fitting import fit_by_options, widen_derived_box
@@ -71,7 +72,7 @@ def _fit(args, spec, given, loops, method):
     spec["bounds"] = bounds_to_json(bounds)
     spec["extra_bounds"] = {n: list(v) for n, v in extra.items()}
     problem = build_problem(spec, loops)
-    result = fit_by_options(args, problem, method, None, quiet=True)
+    result = fit_by_options(args, problem, method, None, quiet=True, seeds=seeds)
     if where and where.startswith("bounds derived"):
         result, problem = widen_derived_box(args, spec, given, loops, problem, result,
                                             quiet=True)
@@ -210,6 +211,9 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             note("leave-one-out", f"{form}: loop {lp.index} alone …")
             result, problem, fitted = _fit(args, single, given, [lp], method)
             own.append((result, problem, fitted))
+        # (each loop's fit from its own data alone: the folds' starts, which must not
+        # see the loop a fold holds out — a re-fit from a neighbour's fit would)
+        alone = [r for r, _, _ in own]
         if not partial and not stop_requested():
             own = _own_best(args, own, loops, method)
         short += [f"{form}, loop {lp.index} alone: {r.result}" for (r, _, _), lp in
@@ -220,8 +224,13 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                 partial = True
                 break
             rest = [lp for j, lp in enumerate(loops) if j != i]
+            # (the training loops' fits alone among the starts, where the fold's
+            # parameters are the same kind: shared, no condition law)
+            seeds = [alone[j].params for j in range(len(alone)) if j != i and
+                     not isinstance(alone[j].params, dict)] \
+                if not (spec_f.get("vary") or spec_f.get("per_loop")) else []
             note("leave-one-out", f"{form}: fitting without loop {held.index} …")
-            result, problem, fitted = _fit(args, spec_f, given, rest, method)
+            result, problem, fitted = _fit(args, spec_f, given, rest, method, seeds)
             if result.result == "interrupted":
                 partial = True
                 break
