@@ -87,32 +87,42 @@ def _own_best(args, own, loops, method):
     spec)] per loop, in the order of ``loops``; returns it, improved."""
     import numpy as np
 
+    out = list(own)
+    for i, (result, _, _) in enumerate(own):
+        tries = [(_predict(spec_j, problem_j, result_j.params, loops[i])["rms"], j)
+                 for j, (result_j, problem_j, spec_j) in enumerate(own) if j != i]
+        rms, j = min(tries, default=(np.inf, None))
+        if rms < result.rms_error * (1.0 - 1e-3):
+            out[i] = _again(args, out[i], own[j][0].params, method,
+                            f"from loop {loops[j].index}'s fit", rms, loops[i].index)
+    return out
+
+
+def _again(args, fit, params, method, source: str, rms: float, index):
+    """``fit`` = (result, problem, spec) of one loop alone, fitted again from ``params``
+    (which predict the loop at ``rms``, better than the fit) — with the same number of
+    starts, the rest random, so that nothing new compiles; the better of the two."""
+    import jax
+    import numpy as np
+
     import jaxhyst as jh
 
     from .fitting import refine_from
     from .options import HYBRID
 
-    out = list(own)
-    for i, (result, problem, spec_i) in enumerate(own):
-        tries = [(_predict(spec_j, problem_j, result_j.params, loops[i])["rms"], j)
-                 for j, (result_j, problem_j, spec_j) in enumerate(own) if j != i]
-        rms, j = min(tries, default=(np.inf, None))
-        if not rms < result.rms_error * (1.0 - 1e-3):
-            continue
-        note("leave-one-out", f"{spec_i['variant']}: loop {loops[i].index} alone again, "
-             f"from loop {loops[j].index}'s fit (it predicts it better: {rms:.4g} against "
-             f"{result.rms_error:.4g})")
-        if method in HYBRID or args.starts <= 1:
-            again = refine_from(args, problem, own[j][0].params, quiet=True)
-        else:
-            u = np.clip(np.asarray(problem.space.u_from_params(own[j][0].params)), 0.0, 1.0)
-            rest = np.random.default_rng(args.seed + 1).uniform(0.0, 1.0,
-                                                              (args.starts - 1, u.shape[-1]))
-            again = jh.multistart(problem, np.vstack([u[None], rest]), solver=method,
-                                  max_steps=args.max_steps or 200, report=False)
-        if again.rms_error < result.rms_error:
-            out[i] = (again, problem, spec_i)
-    return out
+    result, problem, spec = fit
+    note("leave-one-out", f"{spec['variant']}: loop {index} alone again, {source} (it "
+         f"predicts the loop better: {rms:.4g} against {result.rms_error:.4g})")
+    params = jax.tree.map(lambda x: x[0] if np.ndim(x) else x, params)  # (shared values)
+    if method in HYBRID or args.starts <= 1:
+        again = refine_from(args, problem, params, quiet=True)
+    else:
+        u = np.asarray(problem.space.u_from_params(params))
+        rest = np.random.default_rng(args.seed + 1).uniform(0.0, 1.0,
+                                                          (args.starts - 1, u.shape[-1]))
+        again = jh.multistart(problem, np.vstack([u[None], rest]), solver=method,
+                              max_steps=args.max_steps or 200, report=False)
+    return (again, problem, spec) if again.rms_error < result.rms_error else fit
 
 
 def _predict(spec, problem, params, loop):
@@ -216,8 +226,6 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
         alone = [r for r, _, _ in own]
         if not partial and not stop_requested():
             own = _own_best(args, own, loops, method)
-        short += [f"{form}, loop {lp.index} alone: {r.result}" for (r, _, _), lp in
-                  zip(own, loops, strict=False) if not r.success]
         rows = []
         for i, held in enumerate(loops):
             if partial or stop_requested():
@@ -242,6 +250,12 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                    "extra_bounds": fitted["extra_bounds"]}
             if not result.success:
                 short.append(f"{form}, fold without loop {held.index}: {result.result}")
+            if i < len(own) and row["rms"] < own[i][0].rms_error * (1.0 - 1e-3) and \
+                    not (spec_f.get("vary") or spec_f.get("per_loop")):
+                # (the fold, which never saw the loop, predicts it better than its own fit:
+                # the own fit stopped in a higher valley)
+                own[i] = _again(args, own[i], result.params, method, "from the fold's fit",
+                                row["rms"], held.index)
             if i < len(own):
                 row["own_rms"] = own[i][0].rms_error
                 row["ratio"] = row["rms"] / max(row["own_rms"], 1e-300)
@@ -255,6 +269,8 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             note("leave-one-out", f"{form}: loop {held.index} predicted, rms "
                  f"{row['rms']:.4g} ({row['outcome']})")
             rows.append(row)
+        short += [f"{form}, loop {lp.index} alone: {r.result}" for (r, _, _), lp in
+                  zip(own, loops, strict=False) if not r.success]
         done = len(rows) == len(loops)
         score = math.exp(sum(math.log(r["rms"] / r["data_scale"]) for r in rows) /
                          len(rows)) if done else None
