@@ -145,6 +145,30 @@ def _predict(spec, problem, params, loop):
             "_curve": (predicted, data)}
 
 
+def candidates(args) -> list[str]:
+    """The candidates --variant names (a list with --leave-one-out; the documented ones if
+    none): a form, or a form with loss coefficients of its own, ``play+relax``."""
+    from .options import VARIANTS
+    from .problems import LOSS_NAMES
+
+    if args.variant is None:
+        return list(CANDIDATES) if args.leave_one_out else ["energy"]
+    forms = [f.strip() for f in args.variant.split(",") if f.strip()]
+    for f in forms:
+        form, *losses = f.split("+")
+        if form not in VARIANTS or any(n not in LOSS_NAMES for n in losses) or \
+                len(set(losses)) != len(losses):
+            raise CLIError(f"--variant {args.variant!r}: the forms are "
+                           f"{', '.join(VARIANTS)}, each optionally with loss coefficients "
+                           f"of its own from {', '.join(LOSS_NAMES)} (e.g. play+relax).")
+    if not forms:
+        raise CLIError(f"--variant {args.variant!r}: the forms are {', '.join(VARIANTS)}.")
+    if len(forms) > 1 and not args.leave_one_out:
+        raise CLIError(f"--variant {args.variant}: several forms are compared only by "
+                       "--leave-one-out (with --joint); name one form to fit.")
+    return forms
+
+
 def candidate_spec(args, candidate: str) -> dict:
     """The spec entries of a candidate of --variant: ``form`` or ``form+loss+…`` → its
     form and loss coefficients (--losses' and its own)."""

@@ -13,6 +13,7 @@ from .flux_fit import check_flux_options, flux_figure
 from .heldout import (
     CANDIDATES,
     candidate_spec,
+    candidates,
     check_comparison,
     held_out_figure,
     held_out_text,
@@ -212,7 +213,7 @@ def check_options(args) -> dict:
     if args.method in HYBRID and args.start:
         raise CLIError("--start applies to the local solvers (e.g. --method lm); a hybrid GA "
                        "searches the whole box.")
-    _forms(args)
+    candidates(args)
     return spec
 
 
@@ -231,7 +232,7 @@ def run(args) -> int:
     if size > 5e6 and args.progress:
         note("identify", f"read {sum(lp.n_samples for lp in loops)} samples in "
                          f"{len(loops)} loop{'s' if len(loops) > 1 else ''}")
-    forms = _forms(args)
+    forms = candidates(args)
     spec.update(candidate_spec(args, forms[0]))
     if args.leave_one_out:
         check_comparison(spec, loops, forms)
@@ -315,27 +316,6 @@ def run(args) -> int:
              + "; ".join(held["stopped_short"]) + " (its held-out error is not final)")
         return 3
     return status
-
-
-def _forms(args) -> list[str]:
-    """The candidates --variant names (a list with --leave-one-out; the documented ones if
-    none): a form, or a form with loss coefficients of its own, ``play+relax``."""
-    if args.variant is None:
-        return list(CANDIDATES) if args.leave_one_out else ["energy"]
-    forms = [f.strip() for f in args.variant.split(",") if f.strip()]
-    for f in forms:
-        form, *losses = f.split("+")
-        if form not in VARIANTS or any(n not in LOSS_NAMES for n in losses) or \
-                len(set(losses)) != len(losses):
-            raise CLIError(f"--variant {args.variant!r}: the forms are "
-                           f"{', '.join(VARIANTS)}, each optionally with loss coefficients "
-                           f"of its own from {', '.join(LOSS_NAMES)} (e.g. play+relax).")
-    if not forms:
-        raise CLIError(f"--variant {args.variant!r}: the forms are {', '.join(VARIANTS)}.")
-    if len(forms) > 1 and not args.leave_one_out:
-        raise CLIError(f"--variant {args.variant}: several forms are compared only by "
-                       "--leave-one-out (with --joint); name one form to fit.")
-    return forms
 
 
 def _losses(text) -> list[str]:
