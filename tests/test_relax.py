@@ -2,7 +2,9 @@
 model against the ODE it discretizes (an independent solve, tests/helpers.py), its
 derivatives against central differences, the mechanism (B keeps rising after the field
 turns; the loss per cycle grows with frequency; τ_M → 0 is the model without it),
-`compensate` through it, and what does not have it (the B-driven model) saying so."""
+`compensate` through it, and what does not have it (the B-driven model) saying so. Its
+identification from the command line is in tests/test_rate_and_flux.py, beside the
+lag's."""
 
 from __future__ import annotations
 
@@ -115,29 +117,3 @@ def test_what_has_no_after_effect_says_so(tmp_path):
     data.write_text("t,H,B\n0,0,0\n1e-3,10,0.1\n2e-3,0,0\n")
     assert main(["identify", str(data), "--driven-by", "B", "--losses", "relax"]) == 2
 
-
-def test_the_after_effect_is_identified_from_the_command_line(tmp_path, capsys):
-    """A B(H) loop of the H-driven model with τ_M = 0.2 ms: ``identify --losses relax``
-    with the rest held at the truth finds it (its box from the data's dH/dt), and the
-    saved model keeps it."""
-    import json
-
-    from jaxhyst.cli import main
-
-    drive = jh.sinusoidal_field(300.0, 200.0, 0.0, samples_per_period=150)
-    sim = jh.simulate(SOFT, NO_ACTUATOR, drive, losses=jh.Losses(relax=2e-4))
-    t, H, B = (np.asarray(drive.observed(x)) for x in (drive.t, drive.H, _B(sim)))
-    data = tmp_path / "bh.csv"
-    data.write_text("t [s],H [A/m],B [T]\n" + "".join(
-        f"{float(a - t[0])!r},{float(h)!r},{float(b)!r}\n"
-        for a, h, b in zip(t, H, B, strict=True)))
-    start = tmp_path / "p.json"
-    start.write_text(json.dumps(SOFT.to_dict()))
-    model = tmp_path / "m.eqx"
-    assert main(["identify", str(data), "--variant", "energy", "--losses", "relax",
-                 "--params", str(start), "--fix", ",".join(jh.NAMES), "--starts", "1",
-                 "--intervals", "linear", "--save-model", str(model), "--json",
-                 "--progress", "0"]) in (0, 4)
-    fit = json.loads(capsys.readouterr().out)
-    assert fit["params"]["relax"]["value"] == pytest.approx(2e-4, rel=1e-4)
-    assert float(jh.load_model(model).losses.relax) == pytest.approx(2e-4, rel=1e-4)
