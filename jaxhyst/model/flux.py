@@ -212,7 +212,7 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
         raise TypeError(f"variant must be a model form (EnergyBasedJA(), PlayJA() …); got "
                         f"{variant!r}.")
     if losses is not None and not isinstance(losses, Losses):
-        raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess, lag); got {losses!r}.")
+        raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess, lag, relax); got {losses!r}.")
     if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
         raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
     if losses is not None and is_concrete(losses.relax) and np.any(

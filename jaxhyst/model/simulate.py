@@ -227,7 +227,7 @@ def _check_inputs(params, actuator, drive, variant, substeps, losses=None) -> No
     if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
         raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
     if losses is not None and not isinstance(losses, Losses):
-        raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess, lag) or None; got "
+        raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess, lag, relax) or None; got "
                         f"{losses!r}.")
     check_parameters(params)
 
