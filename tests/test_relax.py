@@ -53,6 +53,9 @@ def test_the_after_effect_is_the_mechanism_it_names():
         H, M = np.asarray(drive.observed(drive.H)), np.asarray(sim.observed("M"))
         peak = int(np.argmax(H))
         assert M[peak + 5] > M[peak]  # (5 samples = 1/40 of a period after the peak)
+        static = np.asarray(jh.simulate(SOFT, NO_ACTUATOR, drive, losses=jh.Losses())
+                            .observed("M"))
+        assert static[peak + 5] < static[peak]
         B = MU0 * (np.asarray(sim.observed("H_hyst")) + M)
         areas.append(abs(np.sum(0.5 * (H[1:] + H[:-1]) * np.diff(B))))
     assert areas[1] > 1.5 * areas[0], areas
