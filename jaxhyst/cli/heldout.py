@@ -169,11 +169,25 @@ def candidates(args) -> list[str]:
     return forms
 
 
+def loss_names(text) -> list[str]:
+    """--losses 'eddy,excess,relax' → the loss coefficients to identify."""
+    from .problems import LOSS_NAMES
+
+    if not text:
+        return []
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    bad = [n for n in names if n not in LOSS_NAMES]
+    if bad or not names or len(set(names)) != len(names):
+        raise CLIError(f"--losses {text!r}: name the loss coefficients to identify, each "
+                       f"once, from {list(LOSS_NAMES)}.")
+    return names
+
+
 def candidate_spec(args, candidate: str) -> dict:
     """The spec entries of a candidate of --variant: ``form`` or ``form+loss+…`` → its
     form and loss coefficients (--losses' and its own)."""
     form, *own = candidate.split("+")
-    given = [n.strip() for n in (args.losses or "").split(",") if n.strip()]
+    given = loss_names(args.losses)
     return {"variant": form, "losses": [*given, *(n for n in own if n not in given)]}
 
 
@@ -235,6 +249,8 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
     table, partial, short, curves = {}, False, [], {}
     for form in forms:
         spec_f = {**spec, **candidate_spec(args, form)}
+        # (a fold's parameters of the same kind as a single loop's: shared, no law)
+        shared = not (spec_f.get("vary") or spec_f.get("per_loop"))
         own = []
         for lp in loops:
             if stop_requested():
@@ -256,11 +272,9 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                 partial = True
                 break
             rest = [lp for j, lp in enumerate(loops) if j != i]
-            # (the training loops' fits alone among the starts, where the fold's
-            # parameters are the same kind: shared, no condition law)
+            # (the training loops' fits alone among the starts)
             seeds = [alone[j].params for j in range(len(alone)) if j != i and
-                     not isinstance(alone[j].params, dict)] \
-                if not (spec_f.get("vary") or spec_f.get("per_loop")) else []
+                     not isinstance(alone[j].params, dict)] if shared else []
             note("leave-one-out", f"{form}: fitting without loop {held.index} …")
             result, problem, fitted = _fit(args, spec_f, given, rest, method, seeds)
             if result.result == "interrupted":
@@ -274,8 +288,8 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                    "extra_bounds": fitted["extra_bounds"]}
             if not result.success:
                 short.append(f"{form}, fold without loop {held.index}: {result.result}")
-            if i < len(own) and row["rms"] < own[i][0].rms_error * (1.0 - 1e-3) and \
-                    not (spec_f.get("vary") or spec_f.get("per_loop")):
+            if i < len(own) and shared and \
+                    row["rms"] < own[i][0].rms_error * (1.0 - 1e-3):
                 # (the fold, which never saw the loop, predicts it better than its own fit:
                 # the own fit stopped in a higher valley)
                 own[i] = _again(args, own[i], result.params, method, "from the fold's fit",

@@ -18,6 +18,7 @@ from .heldout import (
     held_out_figure,
     held_out_text,
     leave_one_out,
+    loss_names,
     rate_note,
 )
 from .models import file_sha256
@@ -32,7 +33,7 @@ from .options import (
     Parser,
 )
 from .predictions import joint_view, records_of
-from .problems import DEFAULT_CELLS, LOSS_NAMES, build_problem, resolve_bounds
+from .problems import DEFAULT_CELLS, build_problem, resolve_bounds
 from .spec import (
     CLIError,
     actuator_arg,
@@ -188,7 +189,7 @@ def check_options(args) -> dict:
             "output": args.output, "actuator": actuator.to_dict(),
             "fixed": fixed_arg(args.fix, known),
             "run_in_periods": args.run_in_periods, "substeps": args.substeps,
-            "variant": None, "cells": args.cells, "losses": _losses(args.losses),
+            "variant": None, "cells": args.cells, "losses": loss_names(args.losses),
             "joint": args.joint,
             "per_loop": [n.strip() for n in (args.per_loop or "").split(",") if n.strip()],
             "vary": args.vary, "vary_degree": args.vary_degree or 1,
@@ -316,18 +317,6 @@ def run(args) -> int:
              + "; ".join(held["stopped_short"]) + " (its held-out error is not final)")
         return 3
     return status
-
-
-def _losses(text) -> list[str]:
-    """--losses 'eddy,excess,relax' → the loss coefficients to identify."""
-    if not text:
-        return []
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    bad = [n for n in names if n not in LOSS_NAMES]
-    if bad or not names or len(set(names)) != len(names):
-        raise CLIError(f"--losses {text!r}: name the loss coefficients to identify, each "
-                       f"once, from {list(LOSS_NAMES)}.")
-    return names
 
 
 def _interrupted(args, spec, held) -> int:

@@ -84,7 +84,8 @@ def _end_field(inner, S, batched, p, losses, H0, H1, dt, state, Q0, h0):
     function's, dh = −∂G/∂(inputs)·d(inputs) / ∂G/∂h (not Newton's steps differentiated)."""
     # the balance at h_{n+1} = h_n (where only the after-effect moves M)
     tau = losses.relax
-    drift = MU0 * tau * Q0 * (1.0 - decay(tau, dt)) / dt
+    e = decay(tau, dt)
+    drift = MU0 * tau * Q0 * (1.0 - e) / dt
     R = 0.5 * (H0 + H1) - h0 - dynamic_field(drift, losses)
     lo, hi = jnp.minimum(h0, h0 + 2.0 * R), jnp.maximum(h0, h0 + 2.0 * R)
     # first guess: dB/dh frozen at its start value, the quadratic in √|Δh| solved exactly
@@ -93,7 +94,7 @@ def _end_field(inner, S, batched, p, losses, H0, H1, dt, state, Q0, h0):
     # (a slope that is not finite or below −1 — a feedback α·Ms beyond the anhysteretic's
     # stability — gives no usable guess: start from the vacuum's)
     chi = jnp.where(jnp.isfinite(chi) & (chi > -1.0), chi, 0.0)
-    chi = chi * (1.0 - tau * (1.0 - decay(tau, dt)) / dt)  # (the relaxed share of dM_s)
+    chi = chi * (1.0 - tau * (1.0 - e) / dt)  # (the relaxed share of dM_s)
     c = MU0 * (1.0 + chi) / dt
     a = 0.5 + losses.eddy * c + losses.lag / dt
     b = losses.excess * jnp.sqrt(jnp.maximum(c, 0.0))
