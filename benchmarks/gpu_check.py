@@ -15,6 +15,9 @@
    scaled by factors in [0.7, 1.3]) as ``jax.jit(jax.vmap(simulate))``, ns per
    individual·sample on the GPU and on the same machine's CPU (its own time loop) in the
    same run, and the largest difference of M between the two (relative to max |M|).
+4. ``losses``: the rate-dependent model (`jaxhyst.Losses`: eddy-current and excess
+   fields and the magnetic after-effect together) with the classic and the play form on
+   the same drive at 400 Hz, the same population timing and GPU-vs-CPU difference.
 
 Stops starting new measurements once ``--budget`` seconds have passed.
 """
@@ -35,6 +38,8 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--budget", type=float, default=240.0)
     ap.add_argument("--parts", default="classic,compensate,forms")
+    ap.add_argument("--sizes", default="1000,10000,100000",
+                    help="population sizes of the forms and losses parts")
     args = ap.parse_args()
     parts = args.parts.split(",")
     start = time.perf_counter()
@@ -81,8 +86,11 @@ def main():
             print(f"| {label} | {P} | {t_vmap / (P * T) * 1e9:.2f} | "
                   f"{t_batch / (P * T) * 1e9:.2f} | {first:.1f} |", flush=True)
 
+    sizes = tuple(int(v) for v in args.sizes.split(","))
     if "forms" in parts:
-        forms(start, args.budget)
+        forms(start, args.budget, sizes)
+    if "losses" in parts:
+        forms(start, args.budget, sizes, losses=True)
     if time.perf_counter() - start > args.budget or "compensate" not in parts:
         return
     from jaxhyst.control import compensate, sinusoidal_reference
@@ -104,8 +112,8 @@ def main():
     print(f"total {time.perf_counter() - start:.0f} s")
 
 
-def forms(start, budget):
-    """Part 3 (the module's docstring)."""
+def forms(start, budget, sizes=(1_000, 10_000, 100_000), losses=False):
+    """Parts 3 and 4 (the module's docstring)."""
     import jax
     import jax.numpy as jnp
     from bench_simulate import median_time
@@ -115,19 +123,25 @@ def forms(start, budget):
     from jaxhyst.model import interval, timeloop
     from jaxhyst.model.simulate import simulate_unchecked
 
-    drive = jh.sinusoidal_field(50.0, 120.0, 0.0, samples_per_period=200)
+    drive = jh.sinusoidal_field(400.0 if losses else 50.0, 120.0, 0.0,
+                                samples_per_period=200)
     T = drive.n_samples
+    # (the after-effect's τ_M of ~1/10 of the period; field terms of a few % of the field)
+    rate = jh.Losses(eddy=0.05, excess=0.05, relax=2e-4) if losses else None
     base = jh.Parameters(Ms=3.8e5, lambda_s=0.0, a=30.0, k=25.0, alpha=3e-5, c=0.4, E=1.0,
                          Kz=1.0, Mz=1.0, Cz=0.0)
     cpu = jax.devices("cpu")[0]
     print("\n| form | P | GPU ns/indiv·sample | CPU ns/indiv·sample | first call GPU / CPU (s) "
           "| max |ΔM| / max |M| |\n|---|---|---|---|---|---|", flush=True)
-    for form in (jh.PlayJA(spread=0.7, cells=16), jh.PreisachJA(spread=0.7, cells=16)):
+    shown = ((jh.ClassicJA(), jh.PlayJA(spread=0.7, cells=16)) if losses else
+             (jh.PlayJA(spread=0.7, cells=16), jh.PreisachJA(spread=0.7, cells=16)))
+    for form in shown:
         def one(x, form=form):
             p = base.replace(a=base.a * x[0], k=base.k * x[1], c=base.c * x[2])
-            return simulate_unchecked(p, NO_ACTUATOR, drive, form, substeps=1).M
+            return simulate_unchecked(p, NO_ACTUATOR, drive, form, substeps=1,
+                                      losses=rate).M
 
-        for P in (1_000, 10_000, 100_000):
+        for P in sizes:
             if time.perf_counter() - start > budget:
                 print(f"(budget reached before {type(form).__name__}, P = {P})")
                 return
@@ -151,7 +165,8 @@ def forms(start, budget):
             Mg, Mc = row["gpu"][2], row["cpu"][2]
             diff = "—" if Mc is None else \
                 f"{np.max(np.abs(Mg - Mc)) / np.max(np.abs(Mc)):.1e}"
-            print(f"| {type(form).__name__} | {P} | {row['gpu'][0]:.2f} | {row['cpu'][0]:.2f} "
+            label = type(form).__name__ + (" + losses" if losses else "")
+            print(f"| {label} | {P} | {row['gpu'][0]:.2f} | {row['cpu'][0]:.2f} "
                   f"| {row['gpu'][1]:.1f} / {row['cpu'][1]:.1f} | {diff} |", flush=True)
 
 

@@ -10,6 +10,7 @@ import functools
 
 from . import identify
 from .analysis.identifiability import identifiability
+from .identify.result import stopped_short
 from .identify.signal import sampling_error
 
 
@@ -20,20 +21,56 @@ def attach_report(result, problem, report: bool | str = True):
     True (the linear intervals, unchecked: no re-fits),
     ``"profile"`` (intervals checked along the profile likelihood and moved where the
     quadratic fails: `jaxhyst.analysis.profile_intervals`; a few batches of constrained
-    re-fits) or False."""
+    re-fits) or False.
+
+    Where a profile re-fit ends below the fit's cost (the fit stopped short of the
+    minimum, or in a local one: ``report.lower_cost``), the fit continues from that
+    re-fit — one Levenberg–Marquardt solve of every free parameter — and, where that
+    lowers the cost, the result is the continued fit (``extra["convergence_check"]`` says
+    from where and by how much; its steps and time are added) with the report made
+    again at it. Once: a second lower cost is reported, not chased."""
     if result.result == "nonfinite":
         return result
-    error = sampling_error(problem, result.params)
-    if error is not None:  # (its warning is among the result's warnings)
-        result = dataclasses.replace(result, sampling_error=error,
-                                     substeps=int(problem.substeps))
+    result = _with_sampling_error(result, problem)
     if not report:
         return result
     try:
-        return result.with_report(identifiability(problem, result.params,
-                                                  profile=report == "profile"))
+        rep = identifiability(problem, result.params, profile=report == "profile")
+        if rep.lower_cost:
+            result, rep = _continued(result, problem, rep)
+        return result.with_report(rep)
     except (ValueError, FloatingPointError) as err:
         return result.with_report(None, error=str(err))
+
+
+def _with_sampling_error(result, problem):
+    """``result`` with the model's error at the data's sampling where it exceeds the
+    documented accuracy (its warning is then among the result's warnings)."""
+    error = sampling_error(problem, result.params)
+    if error is None:
+        return result
+    return dataclasses.replace(result, sampling_error=error, substeps=int(problem.substeps))
+
+
+def _continued(result, problem, rep):
+    """(result, report) continued from the report's lower-cost re-fit where that lowers
+    the cost (`attach_report`); else the two unchanged."""
+    import numpy as np
+
+    low = rep.lower_cost
+    space = problem.space
+    u = np.clip(np.asarray(space.u_from_free(np.asarray(low["values"], float))), 0.0, 1.0)
+    more = identify.solve(problem, u)
+    if not stopped_short(result.cost, more.cost):
+        return result, rep
+    check = {"cost_before": float(result.cost), "cost_after": float(more.cost),
+             "steps": int(more.steps), "by": "the profile check",
+             "from": f"{low['held']} = {low['value']:.6g}"}
+    merged = _with_sampling_error(dataclasses.replace(
+        more, solver=result.solver, steps=int(result.steps) + int(more.steps),
+        wall_time=float(result.wall_time) + float(more.wall_time),
+        extra={**result.extra, "convergence_check": check}), problem)
+    return merged, identifiability(problem, merged.params, profile=True)
 
 
 def _with_report(fn):

@@ -384,3 +384,50 @@ def test_an_end_on_a_wall_of_the_profile_is_located_or_said_to_be_unsettled():
     rep.unsettled = {"q": {"side": "below", "between": (1.2, 0.9), "bracketed": False}}
     assert "q: its lower end was not settled by the profile search: the profile stays " \
         "below the threshold as far as 1.2; the end given, 0.9, is extrapolated" in str(rep)
+
+
+def test_a_fit_that_is_not_the_minimum_is_named_and_continued_by_the_profile_check():
+    """y = exp(b·t) + m on 12 points (σ = 0.05), a fit stopped after two LM steps far from
+    the minimum: the profile check's re-fits end below its cost — the report says NOT
+    THE MINIMUM (it used to clip the negative Δχ² to 0 and print intervals around the
+    wrong point, some of zero width), the grid profile says so too, and a fit with the
+    profile report continues from the lower re-fit to the minimum (said in its text
+    and JSON). At the minimum itself nothing is said."""
+    from jaxhyst.analysis import identifiability, profile_likelihood
+    from jaxhyst.fit import attach_report
+
+    t = jnp.linspace(0.0, 3.0, 12)
+
+    def residuals(theta, data):
+        return {"y": jnp.exp(theta["b"] * t) + theta["m"] - data["y"]}
+
+    space = jh.ParameterSpace.for_tree(lower={"b": -3.0, "m": -30.0},
+                                       upper={"b": 3.0, "m": 30.0})
+    y = np.exp(0.5 * np.asarray(t)) + 0.05 * np.random.default_rng(2).standard_normal(12)
+    problem = jh.ResidualProblem(residuals, space, {"y": jnp.asarray(y)},
+                                 groups={"y": {"sigma": 0.05}})
+    best = jh.solve(problem, {"b": 0.4, "m": 0.1}, solver="lm", report=False)
+    short = jh.solve(problem, {"b": -1.0, "m": 5.0}, solver="lm", max_steps=2, report=False)
+    assert short.cost > 2.0 * best.cost  # (the premise: stopped far from the minimum)
+
+    rep = identifiability(problem, short.params, profile=True)
+    low = rep.lower_cost
+    assert low and low["delta_chi2"] > 1.0 and low["held"] in ("b", "m"), low
+    assert "NOT THE MINIMUM: with " + low["held"] in str(rep)
+    assert rep.to_dict()["lower_cost"] == low
+    prof = profile_likelihood(problem, short.params, "b", n=15)
+    assert prof.fit_above > 1.0 and "NOT THE MINIMUM" in str(prof)
+
+    at_min = identifiability(problem, best.params, profile=True)
+    assert not at_min.lower_cost and "NOT THE MINIMUM" not in str(at_min)
+    assert profile_likelihood(problem, best.params, "b", n=15).fit_above == 0.0
+
+    continued = attach_report(short, problem, "profile")
+    assert continued.cost == pytest.approx(best.cost, rel=1e-6)
+    check = continued.extra["convergence_check"]
+    assert check["cost_before"] == short.cost and check["by"] == "the profile check"
+    assert continued.steps == short.steps + check["steps"]
+    assert "stopped short of the optimum: the profile check (from its re-fit with" in \
+        str(continued)
+    assert continued.to_dict()["convergence_check"]["cost_after"] == continued.cost
+    assert not continued.report.lower_cost

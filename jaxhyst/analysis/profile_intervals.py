@@ -25,6 +25,12 @@ the report says the data do not bound the parameter there.
 Δχ² is the cost difference when every residual group declares its noise level (the cost
 is then a χ²), else the cost difference over σ̂² = cost/(N − n) (and times the variance
 inflation of correlated residuals where the report found them: `misspecification`).
+
+A re-fit that ends *below* the fit's cost (by more than `LOWER`, in Δχ²) shows that the
+fit is not the minimum — it stopped short, or in a local minimum — and its intervals
+describe that point: the lowest such re-fit is kept in ``report.lower_cost`` (the held
+parameter, its value, −Δχ², every free value) for the report to say so and for
+`jaxhyst.fit.attach_report` to continue the fit from there.
 """
 
 from __future__ import annotations
@@ -53,6 +59,9 @@ STEPS = 40
 #: The re-fits' Cauchy termination (rtol, atol): looser in rtol than a fit's (1e-10) — a
 #: re-fit needs its cost to ~1e-7 of itself, far below the Δχ² it is read for.
 RE_FIT_TOLERANCES = (1e-7, 1e-12)
+#: A re-fit this far below the fit's cost (in Δχ²; and by more than 1e-6 of the cost)
+#: shows that the fit is not the minimum.
+LOWER = 0.1
 
 
 @eqx.filter_jit
@@ -170,7 +179,14 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
         last_x = lowers + (uppers - lowers) * np.asarray(u_from_z(zs))
         last_x[~np.isfinite(costs)] = np.nan  # (a failed re-fit: the path again)
         last_v = values
-        delta = np.maximum((costs - cost0) / sigma2, 0.0)
+        drop = (cost0 - costs) / sigma2
+        k_low = int(np.nanargmax(np.where(np.isfinite(costs), drop, -np.inf)))
+        if drop[k_low] > LOWER and cost0 - costs[k_low] > 1e-6 * cost0 and \
+                drop[k_low] > report.lower_cost.get("delta_chi2", 0.0):
+            report.lower_cost = {"held": names[ends[k_low][0]], "value": float(values[k_low]),
+                                 "delta_chi2": float(drop[k_low]),
+                                 "values": [float(v) for v in last_x[k_low]]}
+        delta = np.maximum(-drop, 0.0)
         for k in todo:
             i, side, logs = ends[k]
             s, d = abs(s_now[k]), float(delta[k])

@@ -78,6 +78,10 @@ class IdentifiabilityReport:
     #: extrapolated), "bracketed": bool}}: ends the profile search did not settle (the
     #: interval holds the bracket's interpolation, or the extrapolation)
     unsettled: dict = field(default_factory=dict)
+    #: {"held", "value", "delta_chi2", "values"}: a profile re-fit (``held`` at ``value``)
+    #: that ended ``delta_chi2`` below the fit's cost — the fit is not the minimum;
+    #: ``values`` are that re-fit's free values (SI). Empty where none did.
+    lower_cost: dict = field(default_factory=dict)
 
     @property
     def identifiable(self) -> tuple[str, ...]:
@@ -200,6 +204,7 @@ class IdentifiabilityReport:
             "unbounded": dict(self.unbounded),
             "unsettled": {n: {**u, "between": [float(v) for v in u["between"]]}
                           for n, u in self.unsettled.items()},
+            "lower_cost": dict(self.lower_cost),
             "group_sigma": {k: {"sigma": v[0], "estimated": v[1]}
                             for k, v in self.group_sigma.items()},
             "parameters": {n: {"value": float(v), "unit": u, "std_error": f(self.std_errors[n]),
@@ -276,6 +281,13 @@ class IdentifiabilityReport:
                              f"the profile stays below the threshold as far as "
                              f"{u['between'][0]:.6g}; the end given, {u['between'][1]:.6g}, "
                              "is extrapolated")
+        if self.lower_cost:
+            low = self.lower_cost
+            lines.append(f"  NOT THE MINIMUM: with {low['held']} held at {low['value']:.6g} "
+                         f"the other parameters re-fitted reach a cost lower by Δχ² = "
+                         f"{low['delta_chi2']:.3g}: the fit stopped short of the minimum or "
+                         "in a local one, and the intervals above describe that point; fit "
+                         "again from the result (identify --start RESULT.json)")
         if self.misspecified:
             lines.append(f"  MISSPECIFIED: {self.misspecified}")
         return "\n".join(lines)

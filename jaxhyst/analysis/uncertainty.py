@@ -34,6 +34,7 @@ from ..progress import progress_meter
 from ..sharding import batch_sharding, place
 from .identifiability import whitened_log_jacobian
 from .intervals import bound_aware_intervals, box_in_x, x_side
+from .profile_intervals import LOWER
 from .wording import Z95
 
 CHI2_95 = 3.841458820694124  # 95 % quantile of χ² with one degree of freedom
@@ -56,6 +57,9 @@ class ProfileLikelihood:
     results: list[str]
     roundoff: bool = False  # the best cost is at round-off: noise-free data
     unresolved: bool = False  # no re-fit came within the threshold of the fit's cost
+    #: the fit's Δχ² above the profile's lowest point (> `LOWER`: the fit is not the
+    #: minimum, and Δχ² and the interval are taken from that lower point)
+    fit_above: float = 0.0
 
     def _digits(self) -> int:
         """Significant digits that tell neighbouring grid values apart (at least 6)."""
@@ -88,6 +92,13 @@ class ProfileLikelihood:
         if self.roundoff:
             head += ("\n  the best fit is exact to round-off (noise-free data): Δχ² below "
                      "measures round-off, not information; profile noisy or measured data")
+        if self.fit_above > LOWER:
+            at = float(self.grid[int(np.argmin(self.delta_chi2))])
+            head += (f"\n  NOT THE MINIMUM: the re-fit at {self.name} = {at:.{k}g} lies "
+                     f"Δχ² = {self.fit_above:.4g} below the fit; the fit stopped short of "
+                     "the minimum or in a local one (Δχ² and the interval are measured from "
+                     "that lower point): fit again from the result (identify --start "
+                     "RESULT.json)")
         rows = [f"  {v:>{k + 7}.{k}g}  Δχ² = {d:.4g}"
                 for v, d in zip(self.grid, self.delta_chi2, strict=True)]
         return "\n".join([head, *rows])
@@ -96,7 +107,8 @@ class ProfileLikelihood:
         return {"name": self.name, "value": self.value, "grid": self.grid.tolist(),
                 "cost": self.cost.tolist(), "delta_chi2": self.delta_chi2.tolist(),
                 "interval": list(self.interval), "results": self.results,
-                "roundoff": self.roundoff, "unresolved": self.unresolved}
+                "roundoff": self.roundoff, "unresolved": self.unresolved,
+                "fit_above": self.fit_above}
 
 
 def _crossing(grid, d, i0, direction):
@@ -177,7 +189,9 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
     return ProfileLikelihood(name=name, value=value, grid=grid, cost=costs, delta_chi2=d,
                              theta=theta, interval=interval,
                              results=[str(n) for n in np.atleast_1d(outcome_name(results))],
-                             roundoff=bool(roundoff), unresolved=bool(unresolved))
+                             roundoff=bool(roundoff), unresolved=bool(unresolved),
+                             fit_above=float((best - c_min) / sigma2) if sigma2 > 0 and
+                             best - c_min > 1e-6 * best else 0.0)
 
 
 @eqx.filter_jit

@@ -290,6 +290,8 @@ class IdentificationResult:
                          for n, (side, b) in self.at_bound.items()},
             "far_from_data": list(self.far_from_data),
             "warnings": list(self.warnings),
+            "convergence_check": None if not self.extra.get("convergence_check") else
+            dict(self.extra["convergence_check"]),
         }  # fmt: skip
 
     def __str__(self) -> str:
@@ -302,7 +304,9 @@ class IdentificationResult:
         ]
         check = self.extra.get("convergence_check")
         if check and stopped_short(check["cost_before"], check["cost_after"]):
-            lines.append(f"  the search stopped short of the optimum: the convergence check "
+            by = check.get("by", "the convergence check")
+            where = f" (from its re-fit with {check['from']} held)" if "from" in check else ""
+            lines.append(f"  the search stopped short of the optimum: {by}{where} "
                          f"lowered the cost from {check['cost_before']:.4e} to "
                          f"{check['cost_after']:.4e} in {check['steps']} LM steps")
         if len(self.groups) > 1:
