@@ -23,12 +23,14 @@ def attach_report(result, problem, report: bool | str = True):
     quadratic fails: `jaxhyst.analysis.profile_intervals`; a few batches of constrained
     re-fits) or False.
 
-    Where a profile re-fit ends below the fit's cost (the fit stopped short of the
-    minimum, or in a local one: ``report.lower_cost``), the fit continues from that
-    re-fit — one Levenberg–Marquardt solve of every free parameter — and, where that
-    lowers the cost, the result is the continued fit (``extra["convergence_check"]`` says
-    from where and by how much; its steps and time are added) with the report made
-    again at it. Once: a second lower cost is reported, not chased."""
+    Where a profile re-fit ends below the cost of a fit that says it converged (it
+    stopped short of the minimum, or in a local one: ``report.lower_cost``), the fit
+    continues from that re-fit — one Levenberg–Marquardt solve of every free parameter —
+    and, where that lowers the cost, the result is the continued fit
+    (``extra["convergence_check"]`` says from where and by how much; its steps and time
+    are added) with the report made again at it. Once: a second lower cost is reported,
+    not chased. A fit that ended otherwise (its step limit, a stop request) keeps its
+    outcome and its limit; its report says NOT THE MINIMUM."""
     if result.result == "nonfinite":
         return result
     result = _with_sampling_error(result, problem)
@@ -36,7 +38,7 @@ def attach_report(result, problem, report: bool | str = True):
         return result
     try:
         rep = identifiability(problem, result.params, profile=report == "profile")
-        if rep.lower_cost:
+        if rep.lower_cost and result.success:
             result, rep = _continued(result, problem, rep)
         return result.with_report(rep)
     except (ValueError, FloatingPointError) as err:

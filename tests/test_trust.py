@@ -390,9 +390,10 @@ def test_a_fit_that_is_not_the_minimum_is_named_and_continued_by_the_profile_che
     """y = exp(b·t) + m on 12 points (σ = 0.05), a fit stopped after two LM steps far from
     the minimum: the profile check's re-fits end below its cost — the report says NOT
     THE MINIMUM (it used to clip the negative Δχ² to 0 and print intervals around the
-    wrong point, some of zero width), the grid profile says so too, and a fit with the
-    profile report continues from the lower re-fit to the minimum (said in its text
-    and JSON). At the minimum itself nothing is said."""
+    wrong point, some of zero width), the grid profile says so too, and a fit that says
+    it converged there continues from the lower re-fit to the minimum (said in its text
+    and JSON); one that stopped at its step limit keeps it. At the minimum itself
+    nothing is said."""
     from jaxhyst.analysis import identifiability, profile_likelihood
     from jaxhyst.fit import attach_report
 
@@ -422,6 +423,12 @@ def test_a_fit_that_is_not_the_minimum_is_named_and_continued_by_the_profile_che
     assert not at_min.lower_cost and "NOT THE MINIMUM" not in str(at_min)
     assert profile_likelihood(problem, best.params, "b", n=15).fit_above == 0.0
 
+    # a fit that stopped at its step limit keeps its outcome (the user's limit): said only
+    kept = attach_report(short, problem, "profile")
+    assert kept.result == "max_steps_reached" and kept.cost == short.cost
+    assert kept.report.lower_cost and "NOT THE MINIMUM" in str(kept)
+    # one that says it converged there (LM's small-step test met in a stall) continues
+    short = short.with_outcome("successful")
     continued = attach_report(short, problem, "profile")
     assert continued.cost == pytest.approx(best.cost, rel=1e-6)
     check = continued.extra["convergence_check"]
