@@ -265,6 +265,38 @@ def reference_relaxed(params: jh.Parameters, t, H, k_e=0.0, k_x=0.0, lag=0.0, re
     return out[:, 0], out[:, 2]
 
 
+def reference_relaxed_by_flux(params: jh.Parameters, t, B, relax=1e-4, variant="energy",
+                              smooth=None):
+    """The B-driven model with the after-effect as the ODE it discretizes, written
+    independently: state (M_s, M) with h = B/μ0 − M, Ṁ = (M_s − M)/relax,
+    ḣ = Ḃ/μ0 − Ṁ and Ṁ_s = χ(h, M_s)·ḣ, B linear in time per sample interval — or
+    ``smooth(t) = (B, dB/dt)`` (T, T/s) between the samples: the kinks of a
+    piecewise-linear B each start a transient of M of time constant relax/(1 + χ),
+    which a smooth B has not — DOP853. Returns (h, M) at the samples."""
+    from scipy.integrate import solve_ivp
+
+    p = params.to_dict()
+    t, B = np.asarray(t, float), np.asarray(B, float)
+    state, out = np.array([0.0, 0.0]), [np.array([0.0, 0.0])]
+    for i in range(len(t) - 1):
+        rate = (B[i + 1] - B[i]) / (t[i + 1] - t[i])
+
+        def rhs(tau, s, i=i, rate=rate):
+            b, db = (B[i] + rate * (tau - t[i]), rate) if smooth is None else smooth(tau)
+            mdot = (s[0] - s[1]) / relax
+            h = b / MU0 - s[1]
+            hdot = db / MU0 - mdot
+            chi = np_slope(h, s[0], 1.0 if hdot >= 0 else -1.0, p, variant)
+            return [chi * hdot, mdot]
+
+        sol = solve_ivp(rhs, (t[i], t[i + 1]), state, method="DOP853", rtol=1e-11,
+                        atol=1e-9 * p["Ms"])
+        state = sol.y[:, -1]
+        out.append(state)
+    out = np.array(out)
+    return B / MU0 - out[:, 1], out[:, 1]
+
+
 def reference_play(params: jh.Parameters, spread: float, cells: int, H, a_rev=None):
     """M (A/m) at the samples of the field H (A/m) for a form of pinning cells, written
     from its equations independently of jaxhyst: N play operators of widths

@@ -19,9 +19,6 @@ def check_flux_options(args) -> None:
         if value:
             raise CLIError(f"{flag} applies to H-driven fits; a B-driven fit (--driven-by "
                            "B) shares its parameters or varies them with --vary.")
-    if "relax" in (args.losses or "") or "relax" in (args.variant or ""):
-        raise CLIError("--losses relax: the B-driven model has no after-effect (the "
-                       "magnetization's relaxation); fit it H-driven (leave out --driven-by B).")
     if args.output not in (None, "B"):
         raise CLIError(f"--driven-by B fits the field H from B(t); --output {args.output} "
                        "is of an H-driven fit: leave it out.")

@@ -207,7 +207,7 @@ def rate_note(spec, loops, candidates=()) -> str | None:
         return None
     return (f"the loops were measured at {lo:.4g}–{hi:.4g} Hz and the model is rate "
             "independent: it draws every frequency alike. --losses eddy,excess,lag,relax adds "
-            "the rate-dependent model (the file needs times; relax: H-driven), --variant "
+            "the rate-dependent model (the file needs times), --variant "
             "play+eddy+excess,play+relax compares mechanisms; --vary P:log_f a law in the "
             "frequency")
 

@@ -233,9 +233,6 @@ def _run_flux(args, params, variant, substeps, losses) -> int:
     import jaxhyst as jh
     from jaxhyst.io import write_columns_csv
 
-    if losses is not None and np.any(np.asarray(losses.relax) > 0):
-        raise CLIError("--flux-amplitude drives the B-driven model, which has no "
-                       "after-effect: leave out --relax (or the model's relax), or drive H.")
     drive = jh.sinusoidal_flux(args.frequency, args.flux_amplitude, periods=args.periods,
                                samples_per_period=args.samples_per_period)
     sim = jh.simulate_flux(params, drive, variant, substeps=substeps, losses=losses)

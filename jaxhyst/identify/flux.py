@@ -71,6 +71,8 @@ class FluxProblem(AbstractProblem):
     substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
     sigma: jax.Array | None = None  # (data: a new σ does not recompile; None: estimated)
     priors: tuple = eqx.field(static=True, default=())
+    #: the path with the after-effect (relax free, or fixed > 0 in the space): static
+    after_effect: bool = eqx.field(static=True, default=False)
 
     def __init__(self, data, drives: Sequence[FluxDrive], space: ParameterSpace,
                  output: str = "field", variant=PAPER_VARIANT,
@@ -104,6 +106,8 @@ class FluxProblem(AbstractProblem):
         self.variant, self.substeps = variant, int(substeps)
         self.sigma = None if sigma is None else jnp.asarray(float(sigma), dtype=jnp.float64)
         self.priors = tuple(priors)
+        self.after_effect = "relax" in space.names or float(
+            np.max(space.fixed.get("relax", 0.0))) > 0
         self._check_priors()
 
     @property
@@ -117,7 +121,7 @@ class FluxProblem(AbstractProblem):
         def one(params, drive):
             p, losses, form = split_parameters(params)
             return simulate_flux_unchecked(p, drive, self.variant if form is None else form,
-                                           self.substeps, losses)
+                                           self.substeps, losses, self.after_effect)
 
         return jax.vmap(one, in_axes=(0 if per_record else None, 0))(params, self.drive)
 

@@ -37,6 +37,15 @@ balance's fall with h_{n+1} makes a bracket again. Inside the interval, M at the
 points (elapsed time θ·Δt) is M_s there minus τ_M·Q(θ), Q(θ) = s·(1 − e_θ) + Q_n·e_θ
 (`relaxed`), second order in the sample step like the balance.
 
+**Driven by B** (``RateDependentPath(inner, driver="B")``, the after-effect of
+`jaxhyst.simulate_flux`): the drive is B (T) at the samples, and h_{n+1} is the root of
+
+    B_{n+1}/μ0 − h_{n+1} − M_{n+1}(h_{n+1}) = 0,   M_{n+1} = M_s,n+1 − τ_M·Q_{n+1},
+
+(B = μ0·(h + M), M relaxed as above) — it falls with h_{n+1} at least as fast as −1, so
+it lies between h_n and h_n + G(h_n), found by the same guess and Newton steps; the loss
+fields are then explicit in B's rate (`jaxhyst.model.flux`).
+
 **The time loop** is the skeleton of `jaxhyst.model.timeloop`, with `RateDependentPath`
 as its form: the state is the static form's state, the after-effect's Q and h, and its
 derivative rule, batch rule and accelerator form are the skeleton's. The derivatives of
@@ -49,6 +58,7 @@ from __future__ import annotations
 
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -59,6 +69,10 @@ from .timeloop import AbstractPathForm, Interval
 
 #: Newton steps per sample interval after the closed-form first guess.
 NEWTON_STEPS = 4
+#: … of the B-driven model with the after-effect, whose first guess can be far off where
+#: the static form's slope changes sharply within an interval (a reversal into a steep
+#: branch): the bracket's bisection then takes over.
+FLUX_NEWTON_STEPS = 12
 
 
 def relaxed_deficit(tau, dt, s, Q0):
@@ -76,6 +90,83 @@ def _balance(inner, S, batched, p, losses, H0, H1, dt, state, Q0, h0, h1):
     M0, M1 = Ms0 - losses.relax * Q0, Ms1 - losses.relax * Q1
     rate = (MU0 * (h1 + M1) - MU0 * (h0 + M0)) / dt
     return 0.5 * (H0 + H1) - 0.5 * (h0 + h1) - dynamic_field(rate, losses, (h1 - h0) / dt)
+
+
+def _flux_balance(inner, S, batched, p, losses, B1, dt, state, Q0, h0, h1):
+    """B_{n+1}/μ0 − h_{n+1} − M_{n+1} (A/m): zero at the B-driven solution."""
+    Ms0 = inner.magnetization(state)
+    Ms1 = inner.end_magnetization(p, h0, h1, state, S, batched)
+    Q1 = relaxed_deficit(losses.relax, dt, (Ms1 - Ms0) / dt, Q0)
+    return B1 / MU0 - h1 - (Ms1 - losses.relax * Q1)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
+def _end_field_by_flux(inner, S, batched, p, losses, B1, dt, state, Q0, h0):
+    """h_{n+1} of the B-driven model: the root of `_flux_balance` (module docstring), with
+    the implicit function's derivative (`_implicit_jvp`)."""
+    tau = losses.relax
+    e = decay(tau, dt)
+    G0 = B1 / MU0 - h0 - (inner.magnetization(state) - tau * Q0 * e)  # (at h_{n+1} = h_n)
+    lo, hi = jnp.minimum(h0, h0 + G0), jnp.maximum(h0, h0 + G0)
+    slope = jax.vmap(inner.slope) if batched else inner.slope
+    chi = slope(p, h0, state, jnp.where(G0 >= 0, 1.0, -1.0))
+    chi = jnp.where(jnp.isfinite(chi) & (chi > -1.0), chi, 0.0)
+    chi = chi * (1.0 - tau * (1.0 - e) / dt)  # (the relaxed share of dM_s)
+    h1 = jnp.clip(h0 + G0 / (1.0 + chi), lo, hi)
+
+    def balance(h1):
+        return _flux_balance(inner, S, batched, p, losses, B1, dt, state, Q0, h0, h1)
+
+    return _bracketed_newton(balance, h1, lo, hi)
+
+
+def _newton(balance, h1, lo, hi):
+    """`NEWTON_STEPS` safeguarded Newton steps on a balance that falls with h1."""
+    def newton(_, h1):
+        G, dG = jax.jvp(balance, (h1,), (jnp.ones_like(h1),))
+        # G falls with h1; where it does not (an unstable feedback) no step is taken
+        return jnp.clip(h1 - jnp.where(dG < 0, G, 0.0) / jnp.where(dG < 0, dG, -1.0),
+                        lo, hi)
+
+    return jax.lax.fori_loop(0, NEWTON_STEPS, newton, h1, unroll=on_accelerator())
+
+
+def _bracketed_newton(balance, h1, lo, hi):
+    """`FLUX_NEWTON_STEPS` Newton steps on a balance that falls with h1, its root in
+    [lo, hi]: each evaluation narrows the bracket (G > 0: the root lies above), and a
+    step that would leave it bisects it instead."""
+    def newton(_, carry):
+        h1, lo, hi = carry
+        G, dG = jax.jvp(balance, (h1,), (jnp.ones_like(h1),))
+        lo, hi = jnp.where(G > 0, h1, lo), jnp.where(G < 0, h1, hi)
+        step = h1 - G / jnp.where(dG < 0, dG, -1.0)
+        inside = (step >= lo) & (step <= hi)  # (at the root the step is an end of it)
+        return jnp.where(G == 0, h1, jnp.where(inside, step, 0.5 * (lo + hi))), lo, hi
+
+    return jax.lax.fori_loop(0, FLUX_NEWTON_STEPS, newton, (h1, lo, hi),
+                             unroll=on_accelerator())[0]
+
+
+def _implicit_jvp(root, balance_of, inner, S, batched, primals, tangents):
+    """(h, dh) of a root h of ``balance_of(inner, S, batched, *primals, h)``: ∂G/∂h and
+    ∂G/∂(inputs)·d(inputs) by one forward pass of two tangents (one trace)."""
+    h1 = root(inner, S, batched, *primals)
+
+    def balance(h1, *inputs):
+        return balance_of(inner, S, batched, *inputs, h1)
+
+    zero = jax.tree.map(jnp.zeros_like, tangents)
+    both = jax.tree.map(lambda a, b: jnp.stack([a, b]), (jnp.ones_like(h1), zero),
+                        (jnp.zeros_like(h1), tangents))
+    G_h, G_inputs = jax.vmap(lambda d: jax.jvp(balance, (h1, *primals), (d[0], *d[1]))[1])(
+        both)
+    return h1, -G_inputs / G_h
+
+
+@_end_field_by_flux.defjvp
+def _end_field_by_flux_jvp(inner, S, batched, primals, tangents):
+    return _implicit_jvp(_end_field_by_flux, _flux_balance, inner, S, batched, primals,
+                         tangents)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
@@ -106,29 +197,12 @@ def _end_field(inner, S, batched, p, losses, H0, H1, dt, state, Q0, h0):
     def balance(h1):
         return _balance(inner, S, batched, p, losses, H0, H1, dt, state, Q0, h0, h1)
 
-    def newton(_, h1):
-        G, dG = jax.jvp(balance, (h1,), (jnp.ones_like(h1),))
-        # G falls with h1; where it does not (an unstable feedback) no step is taken
-        return jnp.clip(h1 - jnp.where(dG < 0, G, 0.0) / jnp.where(dG < 0, dG, -1.0),
-                        lo, hi)
-
-    return jax.lax.fori_loop(0, NEWTON_STEPS, newton, h1, unroll=on_accelerator())
+    return _newton(balance, h1, lo, hi)
 
 
 @_end_field.defjvp
 def _end_field_jvp(inner, S, batched, primals, tangents):
-    h1 = _end_field(inner, S, batched, *primals)
-
-    def balance(h1, *inputs):
-        return _balance(inner, S, batched, *inputs, h1)
-
-    # ∂G/∂h and ∂G/∂(inputs)·d(inputs) by one forward pass of two tangents (one trace)
-    zero = jax.tree.map(jnp.zeros_like, tangents)
-    both = jax.tree.map(lambda a, b: jnp.stack([a, b]), (jnp.ones_like(h1), zero),
-                        (jnp.zeros_like(h1), tangents))
-    G_h, G_inputs = jax.vmap(lambda d: jax.jvp(balance, (h1, *primals), (d[0], *d[1]))[1])(
-        both)
-    return h1, -G_inputs / G_h
+    return _implicit_jvp(_end_field, _balance, inner, S, batched, primals, tangents)
 
 
 class RateDependentPath(AbstractPathForm):
@@ -137,9 +211,12 @@ class RateDependentPath(AbstractPathForm):
     form with ``advance``, ``magnetization``, ``end_magnetization``, ``slope`` and
     ``n_outputs``); the state is ``inner``'s, Q (the after-effect's rate deficit) and h;
     the parameters are ``(inner's parameters, Losses)``; the outputs of an interval are
-    ``inner``'s, Q_{n+1} and h_{n+1} (the last)."""
+    ``inner``'s, Q_{n+1} and h_{n+1} (the last). ``driver``: "H" (the applied field, A/m:
+    the field balance) or "B" (T: h from B = μ0·(h + M), the loss fields left to the
+    caller)."""
 
     inner: AbstractPathForm
+    driver: str = eqx.field(static=True, default="H")
 
     @property
     def scales_with_Ms(self) -> bool:
@@ -155,8 +232,9 @@ class RateDependentPath(AbstractPathForm):
 
     def initial_state(self, theta, H0):
         inner_theta, _ = theta
-        return jnp.concatenate([self.inner.initial_state(inner_theta, H0),
-                                jnp.zeros_like(H0)[..., None], H0[..., None]], axis=-1)
+        h0 = H0 / MU0 if self.driver == "B" else H0  # (demagnetized: M = 0)
+        return jnp.concatenate([self.inner.initial_state(inner_theta, h0),
+                                jnp.zeros_like(h0)[..., None], h0[..., None]], axis=-1)
 
     def state_rows(self, substeps: int) -> tuple[int, ...]:
         n = self.inner.n_outputs(substeps)
@@ -165,8 +243,12 @@ class RateDependentPath(AbstractPathForm):
     def interval(self, theta, x: Interval, state, substeps: int, batched: bool):
         p, losses = theta  # (p: the inner form's parameters)
         inner_state, Q0, h0 = state[..., :-2], state[..., -2], state[..., -1]
-        h1 = _end_field(self.inner, substeps, batched, p, losses, x.H0, x.H1, x.dt,
-                        inner_state, Q0, h0)
+        if self.driver == "B":
+            h1 = _end_field_by_flux(self.inner, substeps, batched, p, losses, x.H1, x.dt,
+                                    inner_state, Q0, h0)
+        else:
+            h1 = _end_field(self.inner, substeps, batched, p, losses, x.H0, x.H1, x.dt,
+                            inner_state, Q0, h0)
         out = self.inner.advance(p, h0, h1, inner_state, x.delta, substeps, batched)
         following = out[..., jnp.asarray(self.inner.state_rows(substeps))]
         slope = (self.inner.magnetization(following) - self.inner.magnetization(

@@ -20,8 +20,18 @@ taken at each sample with the mean of the rates of its two neighbouring interval
 (second order for a smooth B). The energy per cycle and volume is exact for that B: the
 static part ∮ H_hyst dB by the cubic Hermite rule on each RK4 piece (H_hyst and its
 slope dH_hyst/dB = 1/μ0 − dM/dB at both ends: 4th order, like RK4), the loss part by
-`jaxhyst.model.losses.dynamic_energy` per interval. The after-effect (``Losses.relax``)
-is not in this model: `simulate_flux` refuses it, `simulate_flux_unchecked` gives NaN.
+`jaxhyst.model.losses.dynamic_energy` per interval.
+
+**The after-effect** (``Losses.relax`` = τ_M, τ_M·dM/dt = M_s − M): M no longer follows B
+alone, so the path is the rate-dependent model's driven by B
+(`jaxhyst.model.dynamic.RateDependentPath` with ``driver="B"``: per interval the field
+h_{n+1} with B_{n+1} = μ0·(h_{n+1} + M_{n+1}), M relaxed exactly for M_s linear in time,
+Newton's method in h), H_hyst = h = B/μ0 − M at the samples, and the static part of
+∮ H dB by the trapezoid rule per interval (h and B both linear in time there): second
+order in the sample step, like the loss fields. `simulate_flux` takes that path where
+relax > 0; traced, `simulate_flux_unchecked` takes it where ``after_effect=True`` (a
+static choice: the parameters' values cannot pick a program), and otherwise gives NaN
+for relax > 0 rather than a model without it.
 """
 
 from __future__ import annotations
@@ -157,24 +167,26 @@ def _arguments(substeps, losses, what: str):
 
 def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
                             variant: AbstractJAVariant = PAPER_VARIANT,
-                            substeps: int = DEFAULT_SUBSTEPS, losses: Losses | None = None
-                            ) -> FluxSimulation:
+                            substeps: int = DEFAULT_SUBSTEPS, losses: Losses | None = None,
+                            after_effect: bool | None = None) -> FluxSimulation:
     """`simulate_flux` without input checks: the pure function for jit/vmap/grad (the
-    arguments in the order of `jaxhyst.simulate_unchecked`)."""
+    arguments in the order of `jaxhyst.simulate_unchecked`). ``after_effect`` (static):
+    True for the path with the magnetization's relaxation (module docstring), False for
+    the path without it; None: with it where ``losses.relax`` is a concrete value > 0."""
     substeps, losses = _arguments(substeps, losses, "simulate_flux_unchecked")
     S = int(substeps)
+    if after_effect is None:
+        after_effect = losses is not None and is_concrete(losses.relax) and bool(
+            np.any(np.asarray(losses.relax) > 0))
     losses = Losses() if losses is None else losses
     B, t = drive.B, drive.t
+    if after_effect:
+        return _with_after_effect(params, drive, variant, S, losses)
     M_sub, k_sub, _, _ = hysteresis_path(variant, params, None, B, substeps=S, driver="B")
     zero = jnp.zeros((1,), dtype=B.dtype)
     M = jnp.concatenate([zero, M_sub[:, -1]])
     H_hyst = B / MU0 - M
-    def at_samples(rate):  # (per interval → per sample: the mean of its neighbours')
-        return jnp.concatenate([rate[:1], 0.5 * (rate[:-1] + rate[1:]), rate[-1:]])
-
-    rate = jnp.diff(B) / jnp.diff(t)  # T/s, per interval
-    H = H_hyst + dynamic_field(at_samples(rate), losses,
-                               at_samples(jnp.diff(H_hyst) / jnp.diff(t)))
+    H = _applied(B, t, H_hyst, losses)
     # energy per interval of the observed part: static (Hermite on the RK4 pieces) + loss
     frac = jnp.arange(S + 1, dtype=B.dtype) / S
     B_points = B[:-1, None] + frac * jnp.diff(B)[:, None]
@@ -184,8 +196,36 @@ def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
     energy = jnp.sum(per_interval[drive.run_in:])
     Man, _ = anhysteretic(H_hyst, M, params)
     # (NaN for an impossible parameter set, under jit too, and for the after-effect,
-    # which this model does not have: never a plausible-looking answer without it)
+    # which this path does not have: never a plausible-looking answer without it)
     bad = ~physically_valid(params) | (losses.relax > 0)
+    H, energy = jnp.where(bad, jnp.nan, H), jnp.where(bad, jnp.nan, energy)
+    return FluxSimulation(t=t, B=B, H=H, H_hyst=H_hyst, M=M, Man=Man, cycle_energy=energy,
+                          run_in=drive.run_in)
+
+
+def _applied(B, t, H_hyst, losses):
+    """The applied field at the samples: H_hyst plus the loss fields, each sample with the
+    mean of the rates of its two neighbouring intervals."""
+    def at_samples(rate):
+        return jnp.concatenate([rate[:1], 0.5 * (rate[:-1] + rate[1:]), rate[-1:]])
+
+    return H_hyst + dynamic_field(at_samples(jnp.diff(B) / jnp.diff(t)), losses,
+                                  at_samples(jnp.diff(H_hyst) / jnp.diff(t)))
+
+
+def _with_after_effect(params, drive, variant, S: int, losses) -> FluxSimulation:
+    """`simulate_flux_unchecked` with the after-effect (module docstring)."""
+    B, t = drive.B, drive.t
+    M_sub, _, h, _ = hysteresis_path(variant, params, t, B, substeps=S, losses=losses,
+                                     driver="B")
+    M = jnp.concatenate([B[:1] / MU0 - h[:1], M_sub[:, -1]])
+    H_hyst = B / MU0 - M
+    per_interval = 0.5 * jnp.diff(B) * (H_hyst[:-1] + H_hyst[1:]) \
+        + dynamic_energy(jnp.diff(B), jnp.diff(t), losses, jnp.diff(H_hyst))
+    energy = jnp.sum(per_interval[drive.run_in:])
+    H = _applied(B, t, H_hyst, losses)
+    Man, _ = anhysteretic(H_hyst, M, params)
+    bad = ~physically_valid(params)
     H, energy = jnp.where(bad, jnp.nan, H), jnp.where(bad, jnp.nan, energy)
     return FluxSimulation(t=t, B=B, H=H, H_hyst=H_hyst, M=M, Man=Man, cycle_energy=energy,
                           run_in=drive.run_in)
@@ -196,14 +236,17 @@ _simulate_flux_jit = eqx.filter_jit(simulate_flux_unchecked)
 
 def simulate_flux(params: Parameters, drive: FluxDrive,
                   variant: AbstractJAVariant = PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
-                  losses: Losses | None = None) -> FluxSimulation:
+                  losses: Losses | None = None, after_effect: bool | None = None
+                  ) -> FluxSimulation:
     """The B-driven model (module docstring): H(t) and ∮ H dB for the flux density of
     ``drive`` (a `FluxDrive`), any model form, RK4 ``substeps``, loss coefficients
     ``losses`` (`jaxhyst.Losses`; none by default: the static inverse model) — the
     arguments in the order of `jaxhyst.simulate`. Only the magnetic parameters (Ms, a,
-    k, α̃, c and a form's own) enter. Raises ``FloatingPointError`` naming the first bad
-    sample if the result is not finite. Traced (under ``jax.jit``, ``eqx.filter_grad`` …)
-    it is `simulate_flux_unchecked`."""
+    k, α̃, c and a form's own) enter. ``after_effect``: the path with the magnetization's
+    relaxation (None: where ``losses.relax`` > 0; give True where the losses are traced,
+    e.g. differentiated, and relax may be > 0). Raises ``FloatingPointError`` naming the
+    first bad sample if the result is not finite. Traced (under ``jax.jit``,
+    ``eqx.filter_grad`` …) it is `simulate_flux_unchecked`."""
     substeps, losses = _arguments(substeps, losses, "simulate_flux")
     if not isinstance(drive, FluxDrive):
         raise TypeError(f"drive must be a jaxhyst.FluxDrive (flux_from_record, "
@@ -215,11 +258,6 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
         raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess, lag, relax); got {losses!r}.")
     if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
         raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
-    if losses is not None and is_concrete(losses.relax) and np.any(
-            np.asarray(losses.relax) > 0):
-        raise ValueError(f"simulate_flux: Losses.relax = {np.asarray(losses.relax)} s, but "
-                         "the B-driven model has no after-effect; drive the model by H "
-                         "(jaxhyst.simulate) or set relax=0.")
     if jnp.ndim(drive.B) != 1:
         raise ValueError(f"simulate_flux takes one drive, but drive.B has shape "
                          f"{jnp.shape(drive.B)}; for a batch of drives use jax.vmap("
@@ -228,12 +266,15 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
         raise ValueError("simulate_flux takes one parameter set; for a batch use jax.vmap("
                          "simulate_flux_unchecked).")
     check_parameters(params)
-    sim = _simulate_flux_jit(params, drive, variant, substeps, losses)
+    if after_effect is None:  # (decided here, where relax is a value: under jit it is not)
+        after_effect = losses is not None and is_concrete(losses.relax) and bool(
+            np.any(np.asarray(losses.relax) > 0))
+    sim = _simulate_flux_jit(params, drive, variant, substeps, losses, bool(after_effect))
     if not is_concrete(sim.H):  # (traced: nothing to read, nothing to check)
         return sim
     finite = np.isfinite(np.asarray(sim.H))
     if finite.all():
-        _check_accuracy(params, drive, variant, substeps, losses, sim)
+        _check_accuracy(params, drive, variant, substeps, losses, sim, bool(after_effect))
     if not finite.all():
         i = int(np.flatnonzero(~finite)[0])
         raise FloatingPointError(
@@ -243,7 +284,7 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
     return sim
 
 
-def _check_accuracy(params, drive, variant, substeps, losses, sim) -> None:
+def _check_accuracy(params, drive, variant, substeps, losses, sim, after_effect) -> None:
     """A `SamplingWarning` where the error of H at this sampling — estimated from the same
     drive at twice the substeps (RK4 in B) and, with losses, at half the sample step —
     exceeds `FLUX_ACCURACY` of H's range (only for drives whose B moves more than 1 % of
@@ -252,12 +293,13 @@ def _check_accuracy(params, drive, variant, substeps, losses, sim) -> None:
     size = float(np.ptp(H)) or 1.0
     in_substeps = in_samples = 0.0
     if may_be_coarse(np.asarray(drive.observed(drive.B)), substeps):
-        fine = _simulate_flux_jit(params, drive, variant, 2 * substeps, losses)
+        fine = _simulate_flux_jit(params, drive, variant, 2 * substeps, losses,
+                                  after_effect)
         in_substeps = richardson_error(H, fine.observed("H"), size)
     if losses is not None:
         t2, B2, run_in2 = refined(drive)
         fine = _simulate_flux_jit(params, FluxDrive(t2, B2, run_in2, drive.uniform), variant,
-                                  substeps, losses)
+                                  substeps, losses, after_effect)
         in_samples = step_error(H, np.asarray(fine.observed("H"))[::2], size)
     error = max(in_substeps, in_samples)
     if error > FLUX_ACCURACY:

@@ -73,8 +73,8 @@ class Losses(eqx.Module):
       applied field with time constant τ); ≥ 0;
     - ``relax``: τ_M, s (τ_M·dM/dt = M_s − M: the magnetization relaxes towards the
       static model's with time constant τ_M, a magnetic after-effect); ≥ 0. In the
-      H-driven model and `compensate`'s inverse; the B-driven model
-      (`jaxhyst.simulate_flux`) does not have it.
+      H-driven model, the B-driven one (`jaxhyst.simulate_flux`: its own path, second
+      order in the sample step) and `compensate`'s inverse.
 
     Arrays (data, differentiable); leaves of shape (P,) for a batch. The pair
     ``(Parameters, Losses)`` is the parameter pytree of the rate-dependent model in

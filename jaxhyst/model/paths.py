@@ -14,7 +14,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from ..params import NAMES, UNITS, Parameters
+from ..params import MU0, NAMES, UNITS, Parameters
 from .drivers import FluxDriven, MagnetizationDriven
 from .dynamic import RateDependentPath, relaxed
 from .jiles_atherton import AbstractJAVariant
@@ -138,6 +138,9 @@ def hysteresis_path(form, p, t, drive, *, substeps: int, losses=None, driver: st
     field h of the rate-dependent model with them, `jaxhyst.model.dynamic`), and None —
     or, with losses, what the after-effect adds to the rate k_sub·dh/dt at u_0 … u_S
     (A/(m·s), shape (N, S + 1); ``Y_sub`` is then the relaxed M, `dynamic.relaxed`).
+    With losses and the driver B, ``k_sub`` is dM_s/dh along h (the path is the
+    rate-dependent model's, `dynamic.RateDependentPath` driven by B: the after-effect
+    in; the loss fields are the caller's, explicit in B's rate).
     """
     S = int(substeps)
     theta = loop_parameters(form, p)
@@ -146,12 +149,12 @@ def hysteresis_path(form, p, t, drive, *, substeps: int, losses=None, driver: st
         out = run_path(theta, t, drive, form=loop, substeps=S)
         Y_sub, k_sub = loop.split(out, theta, drive, S)
         return Y_sub, k_sub, drive, None
-    if driver != "H":
-        raise ValueError("the loss terms enter the H-driven path here; the B-driven model "
-                         "adds them to its field (jaxhyst.simulate_flux).")
+    if driver not in ("H", "B"):
+        raise ValueError(f"the rate-dependent path is driven by H or B, not {driver!r}.")
     inner = path_form(form, "H", end_slope_here=True)
-    out = run_path((theta, losses), t, drive, form=RateDependentPath(inner), substeps=S)
-    h = jnp.concatenate([drive[:1], out[:, -1]])
+    out = run_path((theta, losses), t, drive, form=RateDependentPath(inner, driver),
+                   substeps=S)
+    h = jnp.concatenate([drive[:1] / MU0 if driver == "B" else drive[:1], out[:, -1]])
     Q = jnp.concatenate([jnp.zeros_like(drive[:1]), out[:, -2]])
     Y_sub, k_sub = inner.split(out[:, :-2], theta, h, S)
     M0 = inner.magnetization(inner.initial_state(theta, drive[0]))
