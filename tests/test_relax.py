@@ -180,3 +180,15 @@ def test_the_b_driven_after_effect_is_chosen_statically_and_differentiated():
     assert np.max(np.abs(g - fd)) <= 1e-5 * np.max(np.abs(fd)), (g, fd)
     with pytest.raises(ValueError, match="Losses.relax must lie in"):
         jh.Losses(relax=-1e-3)
+    # a B-driven problem takes the path where its space has relax (shared or per record)
+    drives = [flux, flux]
+    data = np.stack([np.asarray(eager.observed("H"))] * 2)
+    shared = jh.ParameterSpace.with_losses(jh.TABLE1_BOUNDS, {"relax": (0.0, 1e-3)})
+    per_record = jh.per_record_space(jh.TABLE1_BOUNDS, 2, {"relax": (0.0, 1e-3)}, None)
+    without = jh.ParameterSpace.with_losses(jh.TABLE1_BOUNDS, {"eddy": (0.0, 1.0)})
+    assert jh.FluxProblem(data, drives, shared).after_effect
+    assert jh.FluxProblem(data, drives, per_record).after_effect
+    assert not jh.FluxProblem(data, drives, without).after_effect
+    problem = jh.FluxProblem(data, drives, shared)
+    H = np.asarray(problem.predict((SOFT, RELAXED)))
+    assert np.max(np.abs(H - data)) <= 1e-9 * np.max(np.abs(data))

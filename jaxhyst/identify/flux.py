@@ -106,8 +106,11 @@ class FluxProblem(AbstractProblem):
         self.variant, self.substeps = variant, int(substeps)
         self.sigma = None if sigma is None else jnp.asarray(float(sigma), dtype=jnp.float64)
         self.priors = tuple(priors)
-        self.after_effect = "relax" in space.names or float(
-            np.max(space.fixed.get("relax", 0.0))) > 0
+        def relax(n):  # (shared: "relax"; per record: "relax[i]")
+            return n.split("[")[0] == "relax"
+
+        self.after_effect = any(relax(n) for n in space.names) or any(
+            relax(n) and float(np.max(v)) > 0 for n, v in space.fixed.items())
         self._check_priors()
 
     @property

@@ -42,9 +42,11 @@ points (elapsed time θ·Δt) is M_s there minus τ_M·Q(θ), Q(θ) = s·(1 − 
 
     B_{n+1}/μ0 − h_{n+1} − M_{n+1}(h_{n+1}) = 0,   M_{n+1} = M_s,n+1 − τ_M·Q_{n+1},
 
-(B = μ0·(h + M), M relaxed as above) — it falls with h_{n+1} at least as fast as −1, so
-it lies between h_n and h_n + G(h_n), found by the same guess and Newton steps; the loss
-fields are then explicit in B's rate (`jaxhyst.model.flux`).
+(B = μ0·(h + M), M relaxed as above) — where the form's slope is not negative it falls
+with h_{n+1} at least as fast as −1, so it lies between h_n and h_n + G(h_n): a guess of
+the same kind, then `FLUX_NEWTON_STEPS` Newton steps that narrow that bracket and bisect
+it where a step would leave it; the loss fields are then explicit in B's rate
+(`jaxhyst.model.flux`).
 
 **The time loop** is the skeleton of `jaxhyst.model.timeloop`, with `RateDependentPath`
 as its form: the state is the static form's state, the after-effect's Q and h, and its
