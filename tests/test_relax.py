@@ -156,6 +156,14 @@ def test_the_b_driven_after_effect_agrees_with_its_ode_and_inverts_the_h_driven_
             tol * np.max(np.abs(np.asarray(sim.M))), losses
         gaps.append(np.max(np.abs(np.asarray(back.H)[o] - H[o])) / np.ptp(H))
     assert gaps[0] <= 1e-10 and gaps[1] <= 1.5 * gaps[2], gaps
+    # a form of pinning cells the same way (its cells' state through the B-driven root)
+    play = jh.PlayJA(spread=0.7)
+    sim = jh.simulate(SOFT, NO_ACTUATOR, drive, play, losses=RELAXED)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", jh.identify.SamplingWarning)
+        back = jh.simulate_flux(SOFT, jh.FluxDrive(drive.t, _B(sim), drive.run_in), play,
+                                losses=RELAXED)
+    assert np.max(np.abs(np.asarray(back.H)[o] - H[o])) <= 1e-10 * np.ptp(H)
 
 
 def test_the_b_driven_after_effect_is_chosen_statically_and_differentiated():
