@@ -71,7 +71,8 @@ def _continued(result, problem, rep):
     merged = _with_sampling_error(dataclasses.replace(
         more, solver=result.solver, steps=int(result.steps) + int(more.steps),
         wall_time=float(result.wall_time) + float(more.wall_time),
-        extra={**result.extra, "convergence_check": check}), problem)
+        extra={**result.extra, "convergence_check": check,
+               "earlier_convergence_check": result.extra.get("convergence_check")}), problem)
     return merged, identifiability(problem, merged.params, profile=True)
 
 
