@@ -287,7 +287,8 @@ class IdentifiabilityReport:
                          f"the other parameters re-fitted reach a cost lower by Δχ² = "
                          f"{low['delta_chi2']:.3g}: the fit stopped short of the minimum or "
                          "in a local one, and the intervals above describe that point; fit "
-                         "again from the result (identify --start RESULT.json)")
+                         "again (identify with more --starts; --start RESULT.json where it "
+                         "stopped at its step limit)")
         if self.misspecified:
             lines.append(f"  MISSPECIFIED: {self.misspecified}")
         return "\n".join(lines)

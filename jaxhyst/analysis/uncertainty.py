@@ -97,8 +97,8 @@ class ProfileLikelihood:
             head += (f"\n  NOT THE MINIMUM: the re-fit at {self.name} = {at:.{k}g} lies "
                      f"Δχ² = {self.fit_above:.4g} below the fit; the fit stopped short of "
                      "the minimum or in a local one (Δχ² and the interval are measured from "
-                     "that lower point): fit again from the result (identify --start "
-                     "RESULT.json)")
+                     "that lower point): fit again (identify with more --starts; --start "
+                     "RESULT.json where it stopped at its step limit)")
         rows = [f"  {v:>{k + 7}.{k}g}  Δχ² = {d:.4g}"
                 for v, d in zip(self.grid, self.delta_chi2, strict=True)]
         return "\n".join([head, *rows])
