@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..identify import solve_traced
+from ..identify.result import stopped_short
 from ..identify.solvers import make_solver
 from ..identify.space import u_from_z, z_from_u
 from .intervals import critical_value, held_at_bounds, path_point
@@ -59,8 +60,8 @@ STEPS = 40
 #: The re-fits' Cauchy termination (rtol, atol): looser in rtol than a fit's (1e-10) — a
 #: re-fit needs its cost to ~1e-7 of itself, far below the Δχ² it is read for.
 RE_FIT_TOLERANCES = (1e-7, 1e-12)
-#: A re-fit this far below the fit's cost (in Δχ²; and by more than 1e-6 of the cost)
-#: shows that the fit is not the minimum.
+#: A re-fit this far below the fit's cost (in Δχ²; and by more than `stopped_short`'s
+#: 1e-6 of the cost) shows that the fit is not the minimum.
 LOWER = 0.1
 
 
@@ -181,7 +182,7 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
         last_v = values
         drop = (cost0 - costs) / sigma2
         k_low = int(np.nanargmax(np.where(np.isfinite(costs), drop, -np.inf)))
-        if drop[k_low] > LOWER and cost0 - costs[k_low] > 1e-6 * cost0 and \
+        if drop[k_low] > LOWER and stopped_short(cost0, float(costs[k_low])) and \
                 drop[k_low] > report.lower_cost.get("delta_chi2", 0.0):
             report.lower_cost = {"held": names[ends[k_low][0]], "value": float(values[k_low]),
                                  "delta_chi2": float(drop[k_low]),

@@ -27,7 +27,7 @@ import numpy as np
 from .._driver import DONE, KEYBOARD, drive
 from .._interrupt import Interrupted
 from ..identify import outcome_name, solve_traced, start_z
-from ..identify.result import bound_status
+from ..identify.result import bound_status, stopped_short
 from ..identify.solvers import make_solver
 from ..identify.space import u_from_z
 from ..progress import progress_meter
@@ -191,7 +191,7 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
                              results=[str(n) for n in np.atleast_1d(outcome_name(results))],
                              roundoff=bool(roundoff), unresolved=bool(unresolved),
                              fit_above=float((best - c_min) / sigma2) if sigma2 > 0 and
-                             best - c_min > 1e-6 * best else 0.0)
+                             stopped_short(best, c_min) else 0.0)
 
 
 @eqx.filter_jit

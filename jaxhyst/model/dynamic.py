@@ -84,22 +84,36 @@ def relaxed_deficit(tau, dt, s, Q0):
     return s * (1.0 - e) + Q0 * e
 
 
-def _balance(inner, S, batched, p, losses, H0, H1, dt, state, Q0, h0, h1):
-    """The interval's field balance G(h_{n+1}) (A/m): zero at the solution."""
+def _relaxed_ends(inner, S, batched, p, losses, dt, state, Q0, h0, h1):
+    """The relaxed M (A/m) at the interval's start and end, h going from h0 to h1."""
     Ms0 = inner.magnetization(state)
     Ms1 = inner.end_magnetization(p, h0, h1, state, S, batched)
     Q1 = relaxed_deficit(losses.relax, dt, (Ms1 - Ms0) / dt, Q0)
-    M0, M1 = Ms0 - losses.relax * Q0, Ms1 - losses.relax * Q1
+    return Ms0 - losses.relax * Q0, Ms1 - losses.relax * Q1
+
+
+def _first_slope(inner, batched, p, h0, state, direction, tau, e, dt):
+    """dM/dh for a first guess: the form's slope at h0 moving in ``direction``, times the
+    share of dM_s the relaxation passes on within the interval (decay ``e``)."""
+    slope = jax.vmap(inner.slope) if batched else inner.slope
+    chi = slope(p, h0, state, jnp.where(direction >= 0, 1.0, -1.0))
+    # (a slope that is not finite or below −1 — a feedback α·Ms beyond the anhysteretic's
+    # stability — gives no usable guess: start from the vacuum's)
+    chi = jnp.where(jnp.isfinite(chi) & (chi > -1.0), chi, 0.0)
+    return chi * (1.0 - tau * (1.0 - e) / dt)
+
+
+def _balance(inner, S, batched, p, losses, H0, H1, dt, state, Q0, h0, h1):
+    """The interval's field balance G(h_{n+1}) (A/m): zero at the solution."""
+    M0, M1 = _relaxed_ends(inner, S, batched, p, losses, dt, state, Q0, h0, h1)
     rate = (MU0 * (h1 + M1) - MU0 * (h0 + M0)) / dt
     return 0.5 * (H0 + H1) - 0.5 * (h0 + h1) - dynamic_field(rate, losses, (h1 - h0) / dt)
 
 
 def _flux_balance(inner, S, batched, p, losses, B1, dt, state, Q0, h0, h1):
     """B_{n+1}/μ0 − h_{n+1} − M_{n+1} (A/m): zero at the B-driven solution."""
-    Ms0 = inner.magnetization(state)
-    Ms1 = inner.end_magnetization(p, h0, h1, state, S, batched)
-    Q1 = relaxed_deficit(losses.relax, dt, (Ms1 - Ms0) / dt, Q0)
-    return B1 / MU0 - h1 - (Ms1 - losses.relax * Q1)
+    _, M1 = _relaxed_ends(inner, S, batched, p, losses, dt, state, Q0, h0, h1)
+    return B1 / MU0 - h1 - M1
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
@@ -110,10 +124,7 @@ def _end_field_by_flux(inner, S, batched, p, losses, B1, dt, state, Q0, h0):
     e = decay(tau, dt)
     G0 = B1 / MU0 - h0 - (inner.magnetization(state) - tau * Q0 * e)  # (at h_{n+1} = h_n)
     lo, hi = jnp.minimum(h0, h0 + G0), jnp.maximum(h0, h0 + G0)
-    slope = jax.vmap(inner.slope) if batched else inner.slope
-    chi = slope(p, h0, state, jnp.where(G0 >= 0, 1.0, -1.0))
-    chi = jnp.where(jnp.isfinite(chi) & (chi > -1.0), chi, 0.0)
-    chi = chi * (1.0 - tau * (1.0 - e) / dt)  # (the relaxed share of dM_s)
+    chi = _first_slope(inner, batched, p, h0, state, G0, tau, e, dt)
     h1 = jnp.clip(h0 + G0 / (1.0 + chi), lo, hi)
 
     def balance(h1):
@@ -182,12 +193,7 @@ def _end_field(inner, S, batched, p, losses, H0, H1, dt, state, Q0, h0):
     R = 0.5 * (H0 + H1) - h0 - dynamic_field(drift, losses)
     lo, hi = jnp.minimum(h0, h0 + 2.0 * R), jnp.maximum(h0, h0 + 2.0 * R)
     # first guess: dB/dh frozen at its start value, the quadratic in √|Δh| solved exactly
-    slope = jax.vmap(inner.slope) if batched else inner.slope
-    chi = slope(p, h0, state, jnp.where(R >= 0, 1.0, -1.0))
-    # (a slope that is not finite or below −1 — a feedback α·Ms beyond the anhysteretic's
-    # stability — gives no usable guess: start from the vacuum's)
-    chi = jnp.where(jnp.isfinite(chi) & (chi > -1.0), chi, 0.0)
-    chi = chi * (1.0 - tau * (1.0 - e) / dt)  # (the relaxed share of dM_s)
+    chi = _first_slope(inner, batched, p, h0, state, R, tau, e, dt)
     c = MU0 * (1.0 + chi) / dt
     a = 0.5 + losses.eddy * c + losses.lag / dt
     b = losses.excess * jnp.sqrt(jnp.maximum(c, 0.0))

@@ -176,8 +176,7 @@ def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
     substeps, losses = _arguments(substeps, losses, "simulate_flux_unchecked")
     S = int(substeps)
     if after_effect is None:
-        after_effect = losses is not None and is_concrete(losses.relax) and bool(
-            np.any(np.asarray(losses.relax) > 0))
+        after_effect = _relaxes(losses)
     losses = Losses() if losses is None else losses
     B, t = drive.B, drive.t
     if after_effect:
@@ -201,6 +200,12 @@ def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
     H, energy = jnp.where(bad, jnp.nan, H), jnp.where(bad, jnp.nan, energy)
     return FluxSimulation(t=t, B=B, H=H, H_hyst=H_hyst, M=M, Man=Man, cycle_energy=energy,
                           run_in=drive.run_in)
+
+
+def _relaxes(losses) -> bool:
+    """Whether ``losses`` hold an after-effect that can be read: relax a value > 0."""
+    return losses is not None and is_concrete(losses.relax) and bool(
+        np.any(np.asarray(losses.relax) > 0))
 
 
 def _applied(B, t, H_hyst, losses):
@@ -267,8 +272,7 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
                          "simulate_flux_unchecked).")
     check_parameters(params)
     if after_effect is None:  # (decided here, where relax is a value: under jit it is not)
-        after_effect = losses is not None and is_concrete(losses.relax) and bool(
-            np.any(np.asarray(losses.relax) > 0))
+        after_effect = _relaxes(losses)
     sim = _simulate_flux_jit(params, drive, variant, substeps, losses, bool(after_effect))
     if not is_concrete(sim.H):  # (traced: nothing to read, nothing to check)
         return sim
