@@ -70,12 +70,14 @@ def test_simulate_and_simulate_flux_compile_nothing_for_a_new_frequency_or_loss_
     flux = jh.sinusoidal_flux(1000.0, 0.3, samples_per_period=64)
     jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive, losses=losses)
     jh.simulate_flux(jh.TABLE1_TRUE, flux, losses=losses)
+    jh.simulate_flux(jh.TABLE1_TRUE, flux, losses=jh.Losses(relax=1e-4))  # (its own path)
     with counting() as names:
         drive2 = jh.sinusoidal_current(250.0, 0.5, 1.2, jh.ACTUATOR1, samples_per_period=64)
         jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive2,
                     losses=jh.Losses(0.02, 0.9, 1e-5, relax=2e-4))
         flux2 = jh.sinusoidal_flux(400.0, 0.25, samples_per_period=64)
         jh.simulate_flux(jh.TABLE1_TRUE, flux2, losses=jh.Losses(0.1, 0.2, 2e-5))
+        jh.simulate_flux(jh.TABLE1_TRUE, flux2, losses=jh.Losses(0.1, relax=3e-4))
     assert names == []
 
 
