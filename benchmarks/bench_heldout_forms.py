@@ -142,7 +142,8 @@ def relaxation_family(path, seed=2, tau=1.5e-4):
 
 def run_cli(path, forms, out, extra=()):
     cmd = [sys.executable, "-m", "jaxhyst.cli", "identify", path, "--joint", "--leave-one-out",
-           "--variant", forms, "--out", out, "--progress", "0", *extra]
+           *(() if forms == "default" else ("--variant", forms)), "--out", out,
+           "--progress", "0", *(x for x in extra if x)]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     seconds = time.perf_counter() - t0
@@ -179,7 +180,8 @@ def table(name, result, seconds, status) -> list[str]:
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--files", default="mnzn,amplitude,frequency")
-    ap.add_argument("--forms", default="classic,energy,play,preisach")
+    ap.add_argument("--forms", default="classic,energy,play,preisach",
+                    help="the candidates; 'default': none named (the command's own choice)")
     ap.add_argument("--out", default=os.path.join(HERE, "bench_heldout_forms_output.md"))
     ap.add_argument("--losses", default="eddy,excess",
                     help="the loss coefficients fitted on the frequency families")
@@ -200,10 +202,12 @@ def main():
                 path, extra = os.path.join(tmp, "amplitude.csv"), ()
                 amplitude_family(path)
             elif name == "relaxation":
-                path, extra = os.path.join(tmp, "relaxation.csv"), ("--losses", args.losses)
+                path = os.path.join(tmp, "relaxation.csv")
+                extra = ("--losses", args.losses) if args.losses else ()
                 relaxation_family(path)
             else:
-                path, extra = os.path.join(tmp, "frequency.csv"), ("--losses", args.losses)
+                path = os.path.join(tmp, "frequency.csv")
+                extra = ("--losses", args.losses) if args.losses else ()
                 frequency_family(path)
             result, seconds, status = run_cli(path, args.forms,
                                               os.path.join(tmp, f"{name}.json"), extra)

@@ -187,3 +187,31 @@ def test_a_loops_own_fit_is_never_worse_than_another_loops_fit_inside_its_box(tm
             assert better[i][0].rms_error <= rms * (1 + 1e-9), (i, j)
             improved += rms < result.rms_error
     assert improved  # (the case arises here: loop 2's two-step fit is beaten)
+
+
+def test_loops_at_several_frequencies_get_rate_dependent_candidates_by_default():
+    """No form named: the static candidates, unless the loops span frequencies with times
+    (then two static forms beside the two rate mechanisms); a named loss coefficient or a
+    law in the frequency keeps the static candidates (the user chose the rate model)."""
+    from types import SimpleNamespace
+
+    from jaxhyst.cli.heldout import CANDIDATES, RATE_CANDIDATES, candidates
+    from jaxhyst.cli.parser import build_parser
+
+    def loops(freqs, timed=True):
+        return [SimpleNamespace(conditions={"frequency": f}, t=np.zeros(3) if timed else None)
+                for f in freqs]
+
+    def chosen(extra, lps):
+        args = build_parser().parse_args(["identify", "x.csv", "--joint", "--leave-one-out",
+                                          *extra])
+        return tuple(candidates(args, lps))
+
+    assert chosen([], loops((50.0, 100.0, 400.0))) == RATE_CANDIDATES
+    assert chosen([], loops((100.0, 105.0))) == CANDIDATES  # (within 10 %: one frequency)
+    assert chosen([], loops((50.0, 400.0), timed=False)) == CANDIDATES
+    assert chosen([], loops((None, None))) == CANDIDATES
+    assert chosen([], None) == CANDIDATES  # (before the file is read: the options' check)
+    assert chosen(["--losses", "eddy"], loops((50.0, 400.0))) == CANDIDATES
+    assert chosen(["--vary", "k:log_f"], loops((50.0, 400.0))) == CANDIDATES
+    assert chosen(["--variant", "play"], loops((50.0, 400.0))) == ("play",)

@@ -20,6 +20,10 @@ from .spec import CLIError, note
 
 #: The documented candidates compared when no form is named.
 CANDIDATES = ("classic", "energy", "play", "preisach")
+#: … and where the loops span frequencies (`spans_frequencies`, times given, no loss
+#: coefficient or law in the frequency named): two static forms and the two rate
+#: mechanisms on the pinning cells — a static form draws every frequency alike.
+RATE_CANDIDATES = ("play", "classic", "play+relax", "play+eddy+excess")
 
 
 def _distance(a, b) -> float:
@@ -145,14 +149,30 @@ def _predict(spec, problem, params, loop):
             "_curve": (predicted, data)}
 
 
-def candidates(args) -> list[str]:
-    """The candidates --variant names (a list with --leave-one-out; the documented ones if
-    none): a form, or a form with loss coefficients of its own, ``play+relax``."""
+def spans_frequencies(loops, factor: float = 1.1) -> tuple[float, float] | None:
+    """(lowest, highest) frequency where every loop carries one and they lie more than
+    ``factor`` apart; else None."""
+    f = [lp.conditions.get("frequency") for lp in loops]
+    if len(loops) < 2 or any(v is None for v in f) or max(f) <= factor * min(f):
+        return None
+    return min(f), max(f)
+
+
+def candidates(args, loops=None) -> list[str]:
+    """The candidates --variant names (a list with --leave-one-out): a form, or a form
+    with loss coefficients of its own, ``play+relax``. None named: the documented ones —
+    `RATE_CANDIDATES` where ``loops`` (given once read) span frequencies, carry times and
+    neither --losses nor a law in the frequency is given; else `CANDIDATES`."""
     from .options import VARIANTS
-    from .problems import LOSS_NAMES
+    from .problems import LOSS_NAMES, parse_vary
 
     if args.variant is None:
-        return list(CANDIDATES) if args.leave_one_out else ["energy"]
+        if not args.leave_one_out:
+            return ["energy"]
+        rated = loops is not None and spans_frequencies(loops) and \
+            all(lp.t is not None for lp in loops) and not args.losses and \
+            not any("log_f" in f for f in parse_vary(args.vary).values())
+        return list(RATE_CANDIDATES if rated else CANDIDATES)
     forms = [f.strip() for f in args.variant.split(",") if f.strip()]
     for f in forms:
         form, *losses = f.split("+")
@@ -197,14 +217,11 @@ def rate_note(spec, loops, candidates=()) -> str | None:
     that means and the options that change it; else None."""
     from .problems import parse_vary
 
-    f = [lp.conditions.get("frequency") for lp in loops]
-    if len(loops) < 2 or any(v is None for v in f) or spec.get("losses") or \
-            any("+" in c for c in candidates) or \
+    span = spans_frequencies(loops)
+    if span is None or spec.get("losses") or any("+" in c for c in candidates) or \
             any("log_f" in feats for feats in parse_vary(spec.get("vary")).values()):
         return None
-    lo, hi = min(f), max(f)
-    if hi <= 1.1 * lo:
-        return None
+    lo, hi = span
     return (f"the loops were measured at {lo:.4g}–{hi:.4g} Hz and the model is rate "
             "independent: it draws every frequency alike. --losses eddy,excess,lag,relax adds "
             "the rate-dependent model (the file needs times), --variant "

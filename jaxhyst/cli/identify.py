@@ -12,6 +12,7 @@ from .fitting import decimated_first, fit_by_options, widen_derived_box
 from .flux_fit import check_flux_options, flux_figure
 from .heldout import (
     CANDIDATES,
+    RATE_CANDIDATES,
     candidate_spec,
     candidates,
     check_comparison,
@@ -20,6 +21,7 @@ from .heldout import (
     leave_one_out,
     loss_names,
     rate_note,
+    spans_frequencies,
 )
 from .models import file_sha256
 from .options import (
@@ -89,7 +91,9 @@ def add_parser(sub) -> None:
                         "the paper's Jiles–Atherton form, the default; play and preisach: "
                         "forms of pinning cells with return-point memory, their own "
                         "parameter 'spread'); with --leave-one-out a comma-separated list "
-                        "to compare (default there: " + ",".join(CANDIDATES) + "); a form "
+                        "to compare (default there: " + ",".join(CANDIDATES) + "; on loops "
+                        "at several frequencies, with times: " + ",".join(RATE_CANDIDATES)
+                        + "); a form "
                         "may carry loss coefficients of its own, e.g. play+relax or "
                         "play+eddy+excess (the mechanisms compared by held-out error)")
     parser.add_argument("--cells", type=POSITIVE_INT, default=DEFAULT_CELLS,
@@ -233,7 +237,14 @@ def run(args) -> int:
     if size > 5e6 and args.progress:
         note("identify", f"read {sum(lp.n_samples for lp in loops)} samples in "
                          f"{len(loops)} loop{'s' if len(loops) > 1 else ''}")
-    forms = candidates(args)
+    forms = candidates(args, loops)
+    if args.variant is None and args.leave_one_out and args.progress and \
+            tuple(forms) == RATE_CANDIDATES:
+        lo, hi = spans_frequencies(loops)
+        note("identify", f"the loops were measured at {lo:.4g}–{hi:.4g} Hz: the candidates "
+                         f"compared are {', '.join(forms)} (two static forms, two rate "
+                         "mechanisms; --variant names others). The rate-dependent ones take "
+                         "minutes on 2 cores")
     spec.update(candidate_spec(args, forms[0]))
     if args.leave_one_out:
         check_comparison(spec, loops, forms)
