@@ -159,6 +159,22 @@ def learner():
     return IterativeLearning.of(MODEL, SINE, current_limit=LIMIT)
 
 
+def test_the_first_step_is_held_to_twice_the_input_an_error_needs(learner):
+    """An error the actuator can only follow with a large input (at 0.3 of the Nyquist
+    frequency, above its structural resonance): the model's own step would be many times
+    the input swing's share of the error; the first step is held to FIRST_REACH of it,
+    and the report says so."""
+    from jaxhyst.control.learning import FIRST_REACH
+
+    state = learner.init()
+    t = np.arange(SINE.n_samples) * SINE.dt
+    y = learner.predict(state) + 0.02 * SINE.scale * np.sin(2 * np.pi * 0.15 / SINE.dt * t)
+    state = learner.step(state, y)
+    report = state.reports[-1]
+    assert report.step <= FIRST_REACH * state.errors[-1] * (1 + 1e-6), report
+    assert f"held to {FIRST_REACH:.3g}× the error" in report.reason, report
+
+
 def test_learning_on_a_noisy_mismatched_plant_never_makes_it_worse(learner):
     """A 0.5 % sensor on a plant 10 % off: every measured error within the noise of the
     one before, the true error after learning within twice the noise, and learning

@@ -49,8 +49,11 @@ error is filtered first: the measurement noise beyond the band never reaches the
   `PHASE_MARGIN` (π/3; learning diverges beyond π/2).
 - **Step size.** A step is no larger, per unit of measured error, than `REACH_GROWTH`
   (1.5) times the largest step per unit of error after which the error fell as the
-  model predicted (the first step is the model's own): a linearisation is not trusted
-  farther than the plant has followed it (``state.reach``; halved with an undone step).
+  model predicted — within `NEAR_FLOOR` (8) times the noise, no larger than that step
+  itself: a linearisation is not trusted farther than the plant has followed it
+  (``state.reach``; halved with an undone step). The first step is the model's own,
+  held to `FIRST_REACH` (2) times the input change an error needs at the drive's mean
+  gain.
 - **Convergence and stalls.** Learning stops when the model predicts no fall larger
   than the noise (within its band: what is left lies where it is not trusted), after
   three undone steps in a row, or with a band below the reference's fundamental, and
@@ -89,9 +92,16 @@ MIN_FACTOR = 1.0 / 64
 MAX_REJECTED = 3
 #: Learning stops once the measured error is within this multiple of the noise.
 NOISE_FLOOR = 1.5
-#: A step whose error fell as predicted lets the next steps be this many times larger
+#: A step whose error fell as predicted lets the next steps be this many times as large
 #: per unit of error (`LearningState.reach`).
 REACH_GROWTH = 1.5
+#: … but not within this multiple of the noise (there a step that outgrew what the
+#: plant followed made the measured error rise by more than σ: benchmarks/RESULTS.md).
+NEAR_FLOOR = 8.0
+#: The largest first step per unit of error (its rms input change over the input's
+#: swing, over the rms error over the stroke): a drive of gain stroke/swing needs 1; the
+#: model's own first steps on plants 10 % off lie at 0.6–0.95 (benchmarks/RESULTS.md).
+FIRST_REACH = 2.0
 #: The phase error (radians) the model may have at the top of the learning band: the
 #: band ends where the lag between plant and model found at the fundamental would turn
 #: the phase by this much (learning diverges beyond π/2).
@@ -258,7 +268,9 @@ class IterativeLearning(eqx.Module):
             elif ratio >= 0.75:
                 why = f"the error fell as predicted ({ratio:.2g} of the predicted fall)"
                 factor, band = min(1.5 * factor, 1.0), min(2.0 * band, limit, nyquist)
-                reach = _borne_out(reach, state.step_ratio, REACH_GROWTH)
+                # (near the noise floor a step is not let outgrow what the plant followed)
+                reach = _borne_out(reach, state.step_ratio, REACH_GROWTH
+                                   if error > NEAR_FLOOR * noise else 1.0)
             elif ratio >= 0.25:
                 why = f"the error fell {ratio:.2g} of the predicted fall"
                 reach = _borne_out(reach, state.step_ratio, 1.0)
@@ -316,11 +328,15 @@ class IterativeLearning(eqx.Module):
                 band, limit = phased, min(limit, phased)
                 why += (f"; the plant's lag against the model ({found - lag:+.2f} samples) "
                         f"limits learning to {band:.4g} Hz")
+        cap = FIRST_REACH if reach is None else reach
         z, step, predicted, predicted_e = self._step(best_z, best_e, factor, band,
-                                                     noise * ref.scale, reach, best_error)
-        if reach is not None and step >= (1 - 1e-9) * reach * best_error:
+                                                     noise * ref.scale, cap, best_error)
+        if step >= (1 - 1e-9) * cap * best_error:
             why += (f"; the step held to {reach:.3g}× the error (the largest step per unit "
-                    "of error the plant has borne out)")
+                    "of error the plant has borne out)" if reach is not None else
+                    f"; the step held to {FIRST_REACH:.3g}× the error (before any step was "
+                    "measured: twice the input change an error needs at the drive's mean "
+                    "gain)")
         if action == "accepted" and best_error - predicted <= margin:
             stop = (f"converged in the band below {band:.4g} Hz: the model predicts no fall "
                     f"of the error larger than the noise"
