@@ -64,8 +64,13 @@ def summary(directory: str, top: int = 15) -> str:
     for name in sorted(os.listdir(directory)):
         if name.endswith(".json"):
             with open(os.path.join(directory, name)) as fh:
-                for test, seconds in json.load(fh).items():
-                    tests[test].update(seconds)
+                data = json.load(fh)
+            if not isinstance(data, dict) or not all(
+                    isinstance(v, dict) and all(isinstance(x, (int, float)) for x in v.values())
+                    for v in data.values()):
+                continue  # (another file in the directory, not a worker's profile)
+            for test, seconds in data.items():
+                tests[test].update(seconds)
     total = sum(tests.values(), collections.Counter())
     lines = ["all tests: " + ", ".join(f"{k} {total[k]:.0f} s" for k in KINDS)
              + f" ({total['compile_n']:.0f} programs compiled or loaded)"]
