@@ -43,7 +43,7 @@ def test_forms_are_compared_and_the_best_predictor_is_kept(tmp_path, capsys):
     _write(data)
     out = tmp_path / "r.json"
     rc = main(["identify", str(data), *COMMON, "--variant", "classic,play",
-               "--max-steps", "100", "--out", str(out)])
+               "--max-steps", "100", "--starts", "2", "--out", str(out)])
     text = capsys.readouterr().out
     held = json.loads(out.read_text())["leave_one_out"]
     assert rc in (0, 3, 4)
