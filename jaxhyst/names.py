@@ -32,3 +32,8 @@ MAGNETIC_OUTPUT_NAMES = ("magnetization", "flux_density")
 #: it comes from, that condition's unit) (`jaxhyst.model.laws.FEATURES`).
 CONDITION_FEATURES = {"log_f": ("frequency", "Hz"), "T": ("temperature", "°C"),
                       "log_amplitude": ("amplitude", "A/m or T")}
+
+
+def base_name(name: str) -> str:
+    """A parameter's name without a loop or record index (``k[2]`` → ``k``)."""
+    return name.split("[")[0]

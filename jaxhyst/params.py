@@ -29,6 +29,7 @@ import numpy as np
 
 from ._jax_compat import concrete_value
 from ._typing import Array, ArrayLike, Float, Real
+from .names import base_name
 
 NAMES: tuple[str, ...] = ("Ms", "lambda_s", "a", "k", "alpha", "c", "E", "Kz", "Mz", "Cz")
 #: Parameters only the magnetostriction and the structure see: they cannot affect M or B.
@@ -177,7 +178,7 @@ def at_physical_limit(name: str, value: float) -> bool:
     """True if ``value`` is valid for ``name`` (`PHYSICAL_RULES`; a per-loop name such as
     ``c[1]`` counts as ``c``) but a step outward is not: the end of its physical range
     (c = 0 or 1, λs = E = Cz = 0)."""
-    base = name.split("[")[0]
+    base = base_name(name)
     if base not in PHYSICAL_RULES:
         return False
     ok = PHYSICAL_RULES[base][0]

@@ -3,19 +3,13 @@ exponents, the words for a null direction; the 95 % normal quantile."""
 
 from __future__ import annotations
 
-import re
-
 import numpy as np
 
 from ..model.paths import parameter_unit
+from ..names import base_name
 
 #: The two-sided 95 % quantile of a standard normal.
 Z95 = 1.959963984540054
-
-
-def base_name(name: str) -> str:
-    """A parameter's name without a loop index (``k[2]`` → ``k``)."""
-    return re.sub(r"\[.*\]$", "", name)
 
 
 def clean(v, tol=1e-6):

@@ -22,6 +22,7 @@ def widen_derived_box(args, spec, given, loops, problem, result, quiet: bool = F
     import numpy as np
 
     from jaxhyst.io import bounds_from_json, bounds_to_json
+    from jaxhyst.names import base_name
     from jaxhyst.params import PHYSICAL_RULES, at_physical_limit
 
     extra_rules = {"eddy": lambda v: v >= 0, "excess": lambda v: v >= 0, "lag": lambda v: v >= 0,
@@ -35,7 +36,7 @@ def widen_derived_box(args, spec, given, loops, problem, result, quiet: bool = F
                **{n: list(v) for n, v in (spec.get("extra_bounds") or {}).items()}}
         widened = []
         for name, (side, bound) in result.at_bound.items():
-            base = name.split("[")[0]
+            base = base_name(name)
             if base in (given or {}) or at_physical_limit(base, bound) or base not in box:
                 continue
             lo, hi = box[base]

@@ -23,7 +23,7 @@ import numpy as np
 from ..model.flux import FluxDrive, simulate_flux_unchecked
 from ..model.jiles_atherton import PAPER_VARIANT
 from ..model.paths import split_parameters
-from ..names import DEFAULT_SUBSTEPS
+from ..names import DEFAULT_SUBSTEPS, base_name
 from .problem import AbstractProblem, GaussianPrior, ResidualGroup
 from .space import ParameterSpace
 
@@ -106,11 +106,9 @@ class FluxProblem(AbstractProblem):
         self.variant, self.substeps = variant, int(substeps)
         self.sigma = None if sigma is None else jnp.asarray(float(sigma), dtype=jnp.float64)
         self.priors = tuple(priors)
-        def relax(n):  # (shared: "relax"; per record: "relax[i]")
-            return n.split("[")[0] == "relax"
-
-        self.after_effect = any(relax(n) for n in space.names) or any(
-            relax(n) and float(np.max(v)) > 0 for n, v in space.fixed.items())
+        # (shared: "relax"; per record: "relax[i]")
+        self.after_effect = any(base_name(n) == "relax" for n in space.names) or any(
+            base_name(n) == "relax" and float(np.max(v)) > 0 for n, v in space.fixed.items())
         self._check_priors()
 
     @property

@@ -28,6 +28,7 @@ import numpy as np
 from .._typing import Array, ArrayLike, Float
 from ..model.losses import LOSS_NAMES, Losses
 from ..model.paths import own_parameters
+from ..names import base_name
 from ..params import NAMES, Bounds, Parameters, check_value
 
 
@@ -351,7 +352,7 @@ class ParameterSpace(eqx.Module):
                 out[n] = float(base[i])
         if self.n_loops:  # collapse "a[0]", "a[1]" … into "a" when equal
             L, merged = self.n_loops, {}
-            for n in dict.fromkeys(f.split("[")[0] for f in self.flat_names):
+            for n in dict.fromkeys(base_name(f) for f in self.flat_names):
                 vals = [out.get(f"{n}[{l_}]") for l_ in range(L)]
                 if all(v is not None for v in vals):
                     merged[n] = vals[0] if len(set(vals)) == 1 else vals
@@ -381,7 +382,7 @@ class ParameterSpace(eqx.Module):
             k = self.names.index(n)
             for pos, w in zip(self.positions, self.which, strict=True):
                 if w == k:
-                    base[pos] = check_value(n.split("[")[0], v, f"fixed value of {n}")
+                    base[pos] = check_value(base_name(n), v, f"fixed value of {n}")
         remap = {old: new for new, old in enumerate(keep)}
         pairs = [(pos, remap[w]) for pos, w in zip(self.positions, self.which, strict=True)
                  if w in remap]
