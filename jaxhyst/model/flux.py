@@ -192,14 +192,9 @@ def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
     M_points = jnp.concatenate([M[:-1, None], M_sub], axis=1)
     per_interval = _hermite_energy(B_points, B_points / MU0 - M_points, 1.0 / MU0 - k_sub) \
         + dynamic_energy(jnp.diff(B), jnp.diff(t), losses, jnp.diff(H_hyst))
-    energy = jnp.sum(per_interval[drive.run_in:])
-    Man, _ = anhysteretic(H_hyst, M, params)
-    # (NaN for an impossible parameter set, under jit too, and for the after-effect,
-    # which this path does not have: never a plausible-looking answer without it)
-    bad = ~physically_valid(params) | (losses.relax > 0)
-    H, energy = jnp.where(bad, jnp.nan, H), jnp.where(bad, jnp.nan, energy)
-    return FluxSimulation(t=t, B=B, H=H, H_hyst=H_hyst, M=M, Man=Man, cycle_energy=energy,
-                          run_in=drive.run_in)
+    # (NaN for the after-effect, which this path does not have: never a plausible-looking
+    # answer without it)
+    return _simulation(params, drive, H, H_hyst, M, per_interval, losses.relax > 0)
 
 
 def _relaxes(losses) -> bool:
@@ -227,13 +222,20 @@ def _with_after_effect(params, drive, variant, S: int, losses) -> FluxSimulation
     H_hyst = B / MU0 - M
     per_interval = 0.5 * jnp.diff(B) * (H_hyst[:-1] + H_hyst[1:]) \
         + dynamic_energy(jnp.diff(B), jnp.diff(t), losses, jnp.diff(H_hyst))
+    return _simulation(params, drive, _applied(B, t, H_hyst, losses), H_hyst, M,
+                       per_interval, False)
+
+
+def _simulation(params, drive, H, H_hyst, M, per_interval, bad) -> FluxSimulation:
+    """The `FluxSimulation` of a path: the energy per cycle summed over the intervals
+    after the run-in, H and that energy NaN where ``bad`` or for an impossible parameter
+    set (under jit too)."""
     energy = jnp.sum(per_interval[drive.run_in:])
-    H = _applied(B, t, H_hyst, losses)
     Man, _ = anhysteretic(H_hyst, M, params)
-    bad = ~physically_valid(params)
+    bad = ~physically_valid(params) | bad
     H, energy = jnp.where(bad, jnp.nan, H), jnp.where(bad, jnp.nan, energy)
-    return FluxSimulation(t=t, B=B, H=H, H_hyst=H_hyst, M=M, Man=Man, cycle_energy=energy,
-                          run_in=drive.run_in)
+    return FluxSimulation(t=drive.t, B=drive.B, H=H, H_hyst=H_hyst, M=M, Man=Man,
+                          cycle_energy=energy, run_in=drive.run_in)
 
 
 _simulate_flux_jit = eqx.filter_jit(simulate_flux_unchecked)
