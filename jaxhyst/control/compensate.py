@@ -36,9 +36,9 @@ from .reach import Reach, Unreachable, reach, unreachable
 from .reference import Reference
 from .refine import (
     RESIDUAL_UNIT,
-    AffineResiduals,
     TrackingResiduals,
-    least_squares,
+    affine_input,
+    fit_affine,
     refine_input,
 )
 from .tracking import Tracking, evaluate, input_gain, settling_periods
@@ -202,15 +202,13 @@ def _uncompensated(tracking: Tracking, reference: Reference, limits: InputLimits
     r = np.asarray(reference.displacement)
     span = float(np.ptp(r)) or 1.0
     shape = (r - r.mean()) / (0.5 * span)
-    affine = AffineResiduals(tracking, jnp.asarray(shape), limits.mid, limits.half, jnp.asarray(r),
-                     jnp.asarray(reference.scale))
-    z0 = np.array([(u_start.mean() - float(limits.mid)) / float(limits.half),
-                   0.5 * np.ptp(u_start) / float(limits.half)])
-    z, _, _ = least_squares(affine, jnp.asarray(z0), 40, 1e-6, 1e-9, jnp.zeros(()))
+    mid, half = float(limits.mid), float(limits.half)
+    z0 = np.array([(u_start.mean() - mid) / half, 0.5 * np.ptp(u_start) / half])
+    z = fit_affine(tracking, shape, mid, half, r, z0)
     # within the same limits as the compensated input: the range and the slew rate
     imap = InputMap(limits, reference.n_samples, reference.dt, reference.periodic)
     return np.asarray(imap.input(jnp.asarray(imap.coordinates(
-        np.asarray(affine.input(np.asarray(z)))))))
+        affine_input(z, shape, mid, half)))))
 
 
 def _finer(tracking: Tracking) -> Tracking:

@@ -1,7 +1,7 @@
 """The refinement of `jaxhyst.compensate`: Levenberg–Marquardt on the tracking error
 through the forward model, in coordinates where every input is inside the limits
 (`TrackingResiduals`), in chunks that are looked at for progress and Ctrl-C
-(`refine_input`); and the two-coordinate fit of the uncompensated input (`AffineResiduals`)."""
+(`refine_input`); and the two-coordinate fit of the uncompensated input (`fit_affine`)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import optimistix as optx
 from .._interrupt import stop_requested
 from ..identify import TargetTermination, jacobian_linearized
 from .limits import InputMap
-from .tracking import Tracking
+from .tracking import Tracking, evaluate
 
 #: The refinement's residuals are (y − r) in this fraction of the reference's stroke, so
 #: that Levenberg–Marquardt's first damping (1) is small against JᵀJ: its first steps are
@@ -50,22 +50,49 @@ def least_squares(residuals, z0, max_steps, rtol, atol, target):
     return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
 
 
-class AffineResiduals(eqx.Module):
-    """u = mid + half·(a + b·shape): the uncompensated input's two coordinates."""
+def affine_input(z, shape, mid: float, half: float) -> np.ndarray:
+    """u = mid + half·(a + b·shape), z = (a, b): the uncompensated input (A or A/m)."""
+    return mid + half * (z[0] + z[1] * np.asarray(shape))
 
-    tracking: Tracking
-    shape: jax.Array
-    mid: jax.Array  # (data: another limit compiles nothing)
-    half: jax.Array
-    r: jax.Array
-    scale: jax.Array
 
-    def input(self, z):
-        return self.mid + self.half * (z[0] + z[1] * self.shape)
+def fit_affine(tracking: Tracking, shape, mid: float, half: float, r, z0,
+               max_steps: int = 40) -> np.ndarray:
+    """The two coordinates z = (a, b) of the uncompensated input `affine_input` that
+    minimise Σ(y(u(z)) − r)²: Levenberg–Marquardt with a forward-difference Jacobian,
+    every evaluation the tracking's one compiled forward program (`evaluate`), so that
+    this two-parameter fit compiles nothing of its own. It ends when a step lowers the
+    cost by less than 1e-10 of it, the damping grows past 1e10, or after ``max_steps``;
+    returns z (shape (2,))."""
+    r = np.asarray(r, dtype=np.float64)
 
-    def __call__(self, z, args=None):
-        y = self.tracking.displacement(self.input(z))
-        return (y - self.r) / (self.scale * RESIDUAL_UNIT)
+    def residual(z):
+        return evaluate(tracking, affine_input(z, shape, mid, half)) - r
+
+    z = np.asarray(z0, dtype=np.float64).copy()
+    e = residual(z)
+    cost, damping = float(e @ e), 1e-3
+    for _ in range(max_steps):
+        h = 1e-7 * np.maximum(np.abs(z), 1e-2)
+        J = np.stack([(residual(z + h[j] * np.eye(2)[j]) - e) / h[j] for j in range(2)], 1)
+        A, g = J.T @ J, J.T @ e
+        while damping < 1e10:
+            try:
+                dz = np.linalg.solve(A + damping * np.diag(np.diag(A) + 1e-300), -g)
+            except np.linalg.LinAlgError:
+                damping *= 10.0
+                continue
+            e_new = residual(z + dz)
+            cost_new = float(e_new @ e_new)
+            if np.isfinite(cost_new) and cost_new < cost:
+                break
+            damping *= 10.0
+        else:
+            return z
+        z, e, fell = z + dz, e_new, cost - cost_new
+        cost, damping = cost_new, max(damping / 10.0, 1e-12)
+        if fell <= 1e-10 * cost:
+            break
+    return z
 
 
 #: Levenberg–Marquardt steps of the refinement between two looks at its progress, and
