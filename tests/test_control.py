@@ -235,6 +235,21 @@ def test_a_shifted_record_is_detected_and_corrected_or_refused(learner, delay):
         strict.step(strict.init(), plant.measure(learner.init().input))
 
 
+def test_the_delay_found_at_the_first_measurement_is_held(learner):
+    """An acquisition delay does not change between trials: found at the first
+    measurement (2 samples), it is held for the next, where a record that lags by a
+    different amount (here none) shows the plant's phase at that input — not a new
+    delay, which would compare the two errors under two alignments."""
+    late = SimulatedPlant(MODEL, SINE, delay=2)
+    state = learner.step(learner.init(), late.measure(learner.init().input))
+    assert state.reports[-1].delay == 2
+    aligned = SimulatedPlant(MODEL, SINE)
+    state = learner.step(state, aligned.measure(state.input))
+    report = state.reports[-1]
+    assert report.delay == 2 and abs(report.lag) < 0.3  # (held, though it found none)
+    assert "give the acquisition's delay" not in report.reason  # (said once, at the first)
+
+
 def test_a_known_delay_is_taken_as_given_and_the_lag_left_limits_the_band(learner):
     """The acquisition's delay given: a record late by 3 samples with ``delay=3`` is
     corrected by exactly 3; with ``delay=0`` (none, known) a record late by 2 samples is

@@ -36,7 +36,9 @@ error is filtered first: the measurement noise beyond the band never reaches the
 - **Delay.** The lag between the measured displacement and the model's prediction for
   the applied input is found by cross-correlation; a lag of whole samples is corrected
   (the record shifted back) and reported, or refused with the shift named
-  (``delay="refuse"``). Only a late measurement is an acquisition delay: one that leads
+  (``delay="refuse"``). The delay found at the first measurement is held for the rest
+  (an acquisition's delay does not change between trials; a lag that differs at a later
+  input is the plant's phase there), so every error is measured with one alignment. Only a late measurement is an acquisition delay: one that leads
   the prediction shows the plant's phase differing from the model's, and is reported,
   not corrected. A late one is ambiguous: a plant a little off the model lags or leads
   it by a fraction of its phase (about a sample at 200 per period for 10 %), and such a
@@ -223,6 +225,10 @@ class IterativeLearning(eqx.Module):
         # plant's phase differing from the model's, which learning absorbs)
         if isinstance(self.delay, int):  # (the acquisition's delay, known)
             lag = self.delay
+        elif self.delay == "correct" and state.reports:
+            # (a delay is the acquisition's, the same at every measurement: the one found
+            # at the first is held; a lag found later is the plant's phase at that input)
+            lag = state.reports[0].delay
         else:
             lag = int(np.round(found)) if found >= DELAY_THRESHOLD else 0
         if lag and self.delay == "refuse":
@@ -297,8 +303,8 @@ class IterativeLearning(eqx.Module):
             why = (f"the error rose from {state.best_error:.3e} to {error:.3e}: back to the "
                    f"best input; {where}")
             best_z, best_error, best_e = state.best_z, state.best_error, state.best_e
-        if lag and self.delay == "correct" and 2 * np.pi * found / ref.n_samples < \
-                AMBIGUOUS_PHASE:
+        if lag and self.delay == "correct" and not state.reports and \
+                2 * np.pi * found / ref.n_samples < AMBIGUOUS_PHASE:
             why += (f"; a plant a little off the model may lag it by {found:.2g} samples "
                     "by itself: give the acquisition's delay where it is known (delay=, "
                     "--known-delay)")
