@@ -150,6 +150,30 @@ def test_a_derived_box_that_binds_is_widened_and_the_fit_redone(tmp_path, capsys
     assert status == 0 and not res.get("at_bound"), err
 
 
+def test_a_box_that_leaves_fewer_ends_to_profile_compiles_no_new_re_fit(noisy):
+    """The profile's re-fits are one batch of two ends per parameter whatever the data
+    leave to profile: a box whose upper bound of ``a`` lies inside a's linear interval
+    (that end is on the box: not profiled) runs the check without compiling its re-fits
+    again."""
+    from test_compiles import counting
+
+    from jaxhyst.analysis import identifiability
+
+    problem, _ = noisy
+    fit = jh.solve(problem, jh.TABLE1_TRUE, report=False)
+    first = identifiability(problem, fit.params)
+    space = problem.space
+    i = list(first.names).index("a")
+    a, (_, hi) = first.values[i], first.intervals["a"]
+    upper = np.asarray(space.upper, float).copy()
+    upper[i] = a + 0.3 * (hi - a)
+    boxed = eqx.tree_at(lambda q: q.space, problem, space.with_box(space.lower, upper))
+    with counting() as names:
+        second = identifiability(boxed, fit.params)
+    assert second.intervals["a"][1] <= upper[i] * (1 + 1e-12)
+    assert not [n for n in names if "_held_costs" in n], names
+
+
 def test_the_profile_check_fires_on_a_curved_case_and_not_on_a_straight_one(noisy,
                                                                             monkeypatch):
     """0.1 % noise on the Table 1 loop, four parameters free: along every parameter's

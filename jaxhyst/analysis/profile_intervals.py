@@ -174,9 +174,13 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
             x0 = np.clip(x0, lowers[k], uppers[k])
             width = np.where(uppers[k] > lowers[k], uppers[k] - lowers[k], 1.0)
             z0s.append(np.asarray(z_from_u(np.clip((x0 - lowers[k]) / width, 0.0, 1.0))))
-        costs, zs = _held_costs(problem, solver_, jnp.asarray(lowers), jnp.asarray(uppers),
-                                jnp.asarray(np.array(z0s)), max_steps)
-        costs = np.asarray(costs)
+        # (the batch always holds two ends per parameter — the rest copies of the first —
+        # so that its program does not depend on how many ends these data leave)
+        pad = [0] * (2 * len(names) - B)
+        costs, zs = _held_costs(problem, solver_, jnp.asarray(np.vstack([lowers, lowers[pad]])),
+                                jnp.asarray(np.vstack([uppers, uppers[pad]])),
+                                jnp.asarray(np.array(z0s + [z0s[0]] * len(pad))), max_steps)
+        costs, zs = np.asarray(costs)[:B], np.asarray(zs)[:B]
         last_x = lowers + (uppers - lowers) * np.asarray(u_from_z(zs))
         last_x[~np.isfinite(costs)] = np.nan  # (a failed re-fit: the path again)
         last_v = values
