@@ -137,10 +137,20 @@ def _init_batch(problem, solver, z0s):
 
 @eqx.filter_jit
 def _advance_batch(problem, solver, static, carry, n, max_steps, with_cost):
+    run, _, _ = objective(problem, solver)
+
     def one(c):
         c = advance(problem, solver, static, c, n, max_steps)
-        # the cost for progress lines, in this program (a separate one would compile again)
-        return c, (problem.cost(c[0]) if with_cost else None)
+        if not with_cost:
+            return c, None
+        # the cost for progress lines, in this program (a separate one would compile
+        # again): a Gauss–Newton state holds the residuals at its point (before its first
+        # accepted step, +inf: no cost known), so no simulation is added for those
+        held = accepted_residuals(run, eqx.combine(static, c[2]))
+        if held is None:
+            return c, problem.cost(c[0])
+        r, accepted = held
+        return c, jnp.where(accepted > 0, jnp.sum(r**2), jnp.inf)
 
     return jax.vmap(one)(carry)
 
