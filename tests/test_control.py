@@ -250,6 +250,28 @@ def test_the_delay_found_at_the_first_measurement_is_held(learner):
     assert "give the acquisition's delay" not in report.reason  # (said once, at the first)
 
 
+def test_a_stop_on_an_automatic_small_delay_says_what_it_assumed(learner):
+    """An exact model whose record is late by 2 samples: learning stops at once (the
+    model's own error is left), and — the alignment resting on a delay found
+    automatically, as small as a plant's own lag — the stop says what follows if the
+    acquisition has none. Given (``delay=2``), nothing is assumed and nothing said."""
+    plant = SimulatedPlant(MODEL, SINE, delay=2)
+    state = learner.init()
+    for _ in range(4):
+        state = learner.step(state, plant.measure(state.input))
+        if state.stopped:
+            break
+    assert state.stopped and "aligned by a delay of 2 samples found automatically" in \
+        state.stopped and "--known-delay 0" in state.stopped
+    given = IterativeLearning(learner.compensation, learner.residuals, delay=2)
+    state = given.init()
+    for _ in range(4):
+        state = given.step(state, plant.measure(state.input))
+        if state.stopped:
+            break
+    assert state.stopped and "found automatically" not in state.stopped
+
+
 def test_a_known_delay_is_taken_as_given_and_the_lag_left_limits_the_band(learner):
     """The acquisition's delay given: a record late by 3 samples with ``delay=3`` is
     corrected by exactly 3; with ``delay=0`` (none, known) a record late by 2 samples is

@@ -38,14 +38,15 @@ error is filtered first: the measurement noise beyond the band never reaches the
   (the record shifted back) and reported, or refused with the shift named
   (``delay="refuse"``). The delay found at the first measurement is held for the rest
   (an acquisition's delay does not change between trials; a lag that differs at a later
-  input is the plant's phase there), so every error is measured with one alignment. Only a late measurement is an acquisition delay: one that leads
-  the prediction shows the plant's phase differing from the model's, and is reported,
-  not corrected. A late one is ambiguous: a plant a little off the model lags or leads
-  it by a fraction of its phase (about a sample at 200 per period for 10 %), and such a
-  lag corrected as a delay leaves the plant tracking a shifted reference (several σ off
-  while the measured error sits at the noise floor). Where the acquisition's delay is
-  known, give it (``delay=0``, ``3`` …): it is then corrected exactly and every lag
-  beyond it is the plant's phase.
+  input is the plant's phase there), so every error is measured with one alignment.
+  Only a late measurement is an acquisition delay: one that leads the prediction shows
+  the plant's phase differing from the model's, and is reported, not corrected. A late
+  one is ambiguous: a plant a little off the model lags or leads it by a fraction of its
+  phase (about a sample at 200 per period for 10 %), and such a lag corrected as a delay
+  leaves the plant tracking a shifted reference (several σ off while the measured error
+  sits at the noise floor); where learning stops on such an alignment, the stop says
+  so. Where the acquisition's delay is known, give it (``delay=0``, ``3`` …): it is then
+  corrected exactly and every lag beyond it is the plant's phase.
 - **Phase.** The lag left between plant and model (after any delay) is a phase error
   growing with frequency; learning is limited to the band where it stays below
   `PHASE_MARGIN` (π/3; learning diverges beyond π/2).
@@ -246,6 +247,20 @@ class IterativeLearning(eqx.Module):
             sigma /= np.sqrt(y.shape[0])  # (of their average)
         return mean, lag, sigma, found
 
+    def _alignment_note(self, state: LearningState, lag: int, found: float) -> str:
+        """What a stop adds where the record was aligned by a delay found automatically
+        that a plant a little off the model could show by itself (empty otherwise)."""
+        delay, first = (lag, found) if not state.reports else \
+            (state.reports[0].delay, state.reports[0].lag)
+        if self.delay != "correct" or not delay or \
+                2 * np.pi * first / self.reference.n_samples >= AMBIGUOUS_PHASE:
+            return ""
+        n = f"{delay} sample" + ("s" if delay != 1 else "")
+        return (f"; the record was aligned by a delay of {n} found automatically, as much "
+                "as a plant a little off the model lags by itself: if the acquisition has "
+                f"no delay, the actuator follows the reference {n} late (give the delay: "
+                "delay=0, --known-delay 0)")
+
     def step(self, state: LearningState, measured) -> LearningState:
         """The next state, from the displacement ``measured`` (m, shape (N,) or (R, N):
         at the reference's samples, with ``state.input`` applied)."""
@@ -320,6 +335,7 @@ class IterativeLearning(eqx.Module):
                     f"reference's fundamental {fundamental:.4g} Hz")
         iteration = state.iteration + 1
         if stop is not None:
+            stop += self._alignment_note(state, lag, found)
             report = LearningReport(iteration, error, noise, lag, found, "stopped", stop, None,
                                     0.0, factor, band)
             imap = self.residuals.imap
@@ -347,7 +363,7 @@ class IterativeLearning(eqx.Module):
             stop = (f"converged in the band below {band:.4g} Hz: the model predicts no fall "
                     f"of the error larger than the noise"
                     + ("" if band >= nyquist else " (what is left lies where it is not "
-                       "trusted)"))
+                       "trusted)") + self._alignment_note(state, lag, found))
             report = LearningReport(iteration, error, noise, lag, found, "stopped", stop,
                                     None, 0.0, factor, band)
             return dataclasses.replace(
