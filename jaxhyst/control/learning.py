@@ -36,17 +36,15 @@ error is filtered first: the measurement noise beyond the band never reaches the
 - **Delay.** The lag between the measured displacement and the model's prediction for
   the applied input is found by cross-correlation; a lag of whole samples is corrected
   (the record shifted back) and reported, or refused with the shift named
-  (``delay="refuse"``). The delay found at the first measurement is held for the rest
-  (an acquisition's delay does not change between trials; a lag that differs at a later
-  input is the plant's phase there), so every error is measured with one alignment.
-  Only a late measurement is an acquisition delay: one that leads the prediction shows
-  the plant's phase differing from the model's, and is reported, not corrected. A late
-  one is ambiguous: a plant a little off the model lags or leads it by a fraction of its
-  phase (about a sample at 200 per period for 10 %), and such a lag corrected as a delay
-  leaves the plant tracking a shifted reference (several σ off while the measured error
-  sits at the noise floor); where learning stops on such an alignment, the stop says
-  so. Where the acquisition's delay is known, give it (``delay=0``, ``3`` …): it is then
-  corrected exactly and every lag beyond it is the plant's phase.
+  (``delay="refuse"``). The delay found at the first measurement is held (an
+  acquisition's delay does not change between trials; a later lag is the plant's phase
+  at that input). Only a late measurement is a delay: one that leads shows the plant's
+  phase, reported, not corrected. A late one is ambiguous: a plant a little off the
+  model lags or leads it by a fraction of its phase (about a sample at 200 per period
+  for 10 %), and such a lag corrected as a delay leaves the plant tracking a shifted
+  reference (several σ off at a measured noise floor; a stop on it says so). Where the
+  acquisition's delay is known, give it (``delay=0``, ``3`` …): it is then corrected
+  exactly and every lag beyond it is the plant's phase.
 - **Phase.** The lag left between plant and model (after any delay) is a phase error
   growing with frequency; learning is limited to the band where it stays below
   `PHASE_MARGIN` (π/3; learning diverges beyond π/2).
