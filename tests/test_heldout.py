@@ -20,12 +20,13 @@ TRUTH = jh.Parameters(Ms=3.5e5, lambda_s=0.0, a=25.0, k=30.0, alpha=1e-5, c=0.3,
 AMPLITUDES = (40.0, 80.0, 200.0)
 
 
-def _write(path, scale_last=1.0):
-    """Three B(H) loops of the play model (the last one's B times ``scale_last``)."""
+def _write(path, scale_last=1.0, samples=(48, 48, 48)):
+    """Three B(H) loops of the play model (the last one's B times ``scale_last``), of
+    ``samples`` samples per period each."""
     form = jh.PlayJA(spread=0.6, cells=8)
     lines = ["loop,H_A_per_m,B_T"]
     for i, Hm in enumerate(AMPLITUDES):
-        drive = jh.sinusoidal_field(1.0, Hm, 0.0, samples_per_period=48)
+        drive = jh.sinusoidal_field(1.0, Hm, 0.0, samples_per_period=samples[i])
         sim = jh.simulate(TRUTH, NO_ACTUATOR, drive, form, substeps=1)
         H = np.asarray(drive.observed(drive.H))
         B = MU0 * (H + np.asarray(drive.observed(sim.M)))
@@ -74,12 +75,25 @@ def test_a_folds_box_does_not_depend_on_the_loop_it_holds_out(tmp_path):
 
 
 def test_a_fold_that_stops_short_sets_exit_3_and_is_named(tmp_path, capsys):
+    """… on loops of unequal lengths, which share one program per kind of fit: every
+    loop alone, every fold and the final fit are padded to the longest loop (the mask is
+    data), so the comparison compiles three solver steps, not one per loop and fold."""
+    from test_compiles import counting
+
     data = tmp_path / "loops.csv"
-    _write(data)
+    _write(data, samples=(40, 56, 48))
     out = tmp_path / "r.json"
-    rc = main(["identify", str(data), *COMMON, "--variant", "play", "--max-steps", "1",
-               "--starts", "2", "--out", str(out)])
+    with counting() as names:
+        rc = main(["identify", str(data), *COMMON, "--variant", "play", "--max-steps", "1",
+                   "--starts", "2", "--out", str(out)])
     captured = capsys.readouterr()
+    steps = [n for n in names if "_advance_batch" in n]
+    # the first argument is the observations, (loops, padded samples): 57 = the longest
+    shapes = {n.split("ShapedArray(float64[", 1)[1].split("]", 1)[0] for n in steps}
+    assert shapes == {"1,57", "2,57", "3,57"}, steps
+    # one program per number of loops (1, 2, 3) and batch of starts (a widening re-fit
+    # from one start may add one): before, one per loop length and per fold, 7 or more
+    assert len(steps) <= 4, steps
     held = json.loads(out.read_text())["leave_one_out"]
     assert rc == 3
     assert all(r["outcome"] == "max_steps_reached"

@@ -74,12 +74,14 @@ def whitened_log_jacobian(problem, x0, scale):
     sizes = np.array([g.size for g in groups])
     N = int(sizes.sum())
     bounds = np.concatenate([[0], np.cumsum(sizes)])
+    counts = [g.count for g in groups]  # (observed: padded rows are 0 in J and e)
+    n_obs = sum(counts)
     sig = []
     for k, g in enumerate(groups):
         if g.sigma is not None:
             sig.append(jnp.asarray(g.sigma, dtype=e.dtype))
         else:
-            dof = max(g.size - n * g.size / N, 1.0)
+            dof = jnp.maximum(counts[k] - n * counts[k] / n_obs, 1.0)
             rss = jnp.sum(e[bounds[k]:bounds[k + 1]] ** 2)
             # no estimate below the data's float64 resolution: data an exact fit
             # reproduces bit for bit (simulated, noise-free) would give σ = 0
@@ -213,10 +215,10 @@ def _declared_sigma_check(problem, J, e, sigma):
     J, e, sigma = J.copy(), e.copy(), sigma.copy()
     out = {}
     for k, g in enumerate(problem.groups):
-        if g.sigma is None or g.size < SIGMA_MIN_SIZE:
+        if g.sigma is None or g.count < SIGMA_MIN_SIZE:
             continue
         rows = slice(ends[k], ends[k + 1])
-        rms = float(np.sqrt(np.mean(e[rows] ** 2)))
+        rms = float(np.sqrt(np.sum(e[rows] ** 2) / g.count))  # (padded rows are 0)
         if 1.0 / SIGMA_RATIO <= rms <= SIGMA_RATIO or not rms > 0:
             continue
         J[rows] /= rms

@@ -44,8 +44,8 @@ def misspecification(problem, e: np.ndarray, n_free: int) -> tuple[str | None, f
     sizes = [g.size for g in groups]
     data = np.asarray(e[:sum(sizes)], float)
     if all(g.sigma is not None for g in groups):
-        chi2 = float(np.sum(data**2))
-        nu = max(sum(sizes) - n_free, 1)
+        chi2 = float(np.sum(data**2))  # (padded rows are 0)
+        nu = max(sum(int(g.count) for g in groups) - n_free, 1)
         z = math.sqrt(2.0 * chi2) - math.sqrt(2.0 * nu - 1.0)
         if z > Z_ONE:
             return (f"lack of fit: χ² = {chi2:.4g} for {nu} degrees of freedom "
@@ -56,10 +56,10 @@ def misspecification(problem, e: np.ndarray, n_free: int) -> tuple[str | None, f
     ends = np.cumsum([0, *sizes])
     r1s, weights = [], []
     for k, g in enumerate(groups):
-        if g.size < 20:
+        if g.count < 20:
             continue
-        r1s.append(lag1(data[ends[k]:ends[k + 1]]))
-        weights.append(g.size)
+        r1s.append(lag1(g.observed(data[ends[k]:ends[k + 1]])))
+        weights.append(int(g.count))
     if not r1s:
         return None, 1.0
     r1 = float(np.average(r1s, weights=weights))

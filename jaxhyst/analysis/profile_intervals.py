@@ -83,7 +83,7 @@ def _noise_variance(problem, cost: float, inflation: float) -> float:
     degree of freedom; times the inflation for correlated residuals."""
     if all(g.sigma is not None for g in problem.groups):
         return inflation
-    dof = max(problem.n_residuals - problem.space.n_free, 1)
+    dof = max(problem.n_observed - problem.space.n_free, 1)
     return max(cost / dof, 1e-300) * inflation
 
 

@@ -177,7 +177,7 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
     if all(g.sigma is not None for g in problem.groups):
         sigma2 = 1.0  # the cost is a chi-square
     else:
-        sigma2 = c_min / max(problem.n_residuals - space.n_free, 1)
+        sigma2 = c_min / max(problem.n_observed - space.n_free, 1)
     d = (costs - c_min) / sigma2 if sigma2 > 0 else np.where(costs > c_min, np.inf, 0.0)
     d = np.where(np.isfinite(d), d, np.inf)
     i0 = int(np.argmin(d))

@@ -62,6 +62,22 @@ def _conditions(spec, loops):
             for i in range(len(loops))]
 
 
+def common_shape(spec, loops) -> list | None:
+    """[run-in, observed samples] of the file's longest loops: every problem of a
+    comparison (each loop alone, each fold) is padded to it, so that one program serves
+    them all however unequal the loops' lengths (None for a B-driven fit)."""
+    import jaxhyst as jh
+
+    from .spec import loop_drive, loop_signal
+
+    if spec.get("driven_by") == "B":
+        return None
+    actuator = jh.Actuator(**spec["actuator"])
+    drives = [loop_drive(spec, lp, loop_signal(spec, lp, spec.get("output")), actuator)
+              for lp in loops]
+    return [max(d.run_in for d in drives), max(d.n_observed for d in drives)]
+
+
 def _fit(args, spec, given, loops, method, seeds=()):
     """A fit of ``loops`` as ``spec`` says, its box from these loops alone (widened
     where the fit ends on a derived bound), its first starts ``seeds`` (parameters):
@@ -264,8 +280,9 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
 
     conditions = _conditions(spec, loops)
     table, partial, short, curves = {}, False, [], {}
+    pad_to = common_shape(spec, loops)
     for form in forms:
-        spec_f = {**spec, **candidate_spec(args, form)}
+        spec_f = {**spec, **candidate_spec(args, form), "pad_to": pad_to}
         # (a fold's parameters of the same kind as a single loop's: shared, no law)
         shared = not (spec_f.get("vary") or spec_f.get("per_loop"))
         own = []
@@ -273,8 +290,9 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             if stop_requested():
                 partial = True
                 break
-            single = {**spec_f, "joint": False, "loop": lp.index, "vary": None,
-                      "per_loop": []}
+            # (a joint problem of one loop, padded as the folds are: one program for all)
+            single = {**spec_f, "joint": pad_to is not None, "loop": lp.index,
+                      "vary": None, "per_loop": []}
             note("leave-one-out", f"{form}: loop {lp.index} alone …")
             result, problem, fitted = _fit(args, single, given, [lp], method)
             own.append((result, problem, fitted))

@@ -32,6 +32,18 @@ def error_summary(predicted, data) -> dict:
             "data_scale": float(np.max(np.abs(data)))}
 
 
+def padded_drive(drive, pad_to):
+    """``drive`` padded to at least ``pad_to`` = [run-in, observed samples] (as a joint
+    problem pads its loops: H = 0 in front, the last value held at the end), so that
+    loops of different lengths share one compiled simulation; its observed samples are
+    ``[run_in : run_in + drive.n_observed]``."""
+    import jax
+
+    from jaxhyst.identify.joint import pad_drives
+
+    return jax.tree.map(lambda x: x[0], pad_drives([drive], pad_to)[0])
+
+
 def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> list:
     """The model's prediction and the data of each loop of ``loops`` (`jaxhyst.io.Loop`,
     of the fitted data or new ones), from a fit of ``fitted`` (the problem built from
@@ -40,7 +52,9 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     {"frequency": …, "temperature": …} overriding the file's); shared joint parameters
     are used as they are; a single-loop fit's parameters likewise. The model is the
     fit's: its form, loss coefficients and the form's own parameters. ``source``: the
-    file the loops come from (for the messages; the fitted data file by default)."""
+    file the loops come from (for the messages; the fitted data file by default). Where
+    ``spec`` pads its problems to a common shape (``pad_to``: a leave-one-out), each
+    loop is simulated padded to it (one program for loops of any length)."""
     import jax
     import numpy as np
 
@@ -74,9 +88,10 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
         p, losses, form = split_parameters(tree)
         name = next((q for q, k in SIGNAL_OUTPUTS.items() if k == kind.name), None)
         drive = loop_drive(spec, lp, name or "B", actuator, source)
-        sim = jh.simulate(p, actuator, drive, records.variant if form is None else form,
+        run = drive if spec.get("pad_to") is None else padded_drive(drive, spec["pad_to"])
+        sim = jh.simulate(p, actuator, run, records.variant if form is None else form,
                           records.substeps, losses)
-        predicted = np.asarray(drive.observed(kind.of(sim)))
+        predicted = np.asarray(kind.of(sim))[run.run_in:run.run_in + drive.n_observed]
         data = lp.signals.get(name)
         out.append((predicted, None if data is None else np.asarray(data)))
     return out

@@ -315,7 +315,7 @@ def build_problem(spec: dict, loops=None):
         records = jh.JointProblem([lp.signals[out] for lp in loops],
                                   [loop_drive(spec, lp, out, actuator) for lp in loops],
                                   actuator, space, output=SIGNAL_OUTPUTS[out],
-                                  variant=form, substeps=substeps)
+                                  variant=form, substeps=substeps, pad_to=spec.get("pad_to"))
         if not vary:
             return records
         model = jh.ConditionModel(vary, int(spec.get("vary_degree", 1)))

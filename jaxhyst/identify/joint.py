@@ -5,8 +5,11 @@ at once. Each parameter is either **shared** by all loops, **per loop** (one val
 loop: the paper's Table 3 identifies the JA parameters per frequency while Ms, E, Kz, Mz
 and Cz are common), or **fixed**. The loops are padded to a common length — in front
 with H = 0 (the demagnetized state does not move while H stays 0), at the end by holding
-the last field value — so that one ``jax.vmap`` over loops evaluates them all; a static
-mask drops the padding from the residuals. Each loop's residuals are normalised by its
+the last field value — so that one ``jax.vmap`` over loops evaluates them all; a mask
+that is data (``valid``) zeroes the padding's residuals and every statistic counts only
+the observed samples. ``pad_to`` pads further, to a common shape: the problems of a
+leave-one-out (each loop alone, each fold) padded to the file's longest loop share one
+compiled program however unequal the loops' lengths. Each loop's residuals are normalised by its
 own max|data|, so small loops count as much as large ones.
 
 A `JointProblem` implements the problem protocol (`AbstractProblem`; one residual
@@ -59,11 +62,14 @@ def fix_structural(bounds: Bounds, fixed: dict | None = None) -> dict:
     return out
 
 
-def _pad_drives(drives: Sequence[Drive]):
-    """Stack drives to one batched `Drive` with a common run-in R and length: front
-    padding with H = 0, end padding holding the last value; per-loop observed mask."""
+def pad_drives(drives: Sequence[Drive], pad_to=None):
+    """Stack drives to one batched `Drive` with a common run-in R and length (at least
+    ``pad_to`` = (run-in, observed samples) where given): front padding with H = 0, end
+    padding holding the last value; per-loop observed mask."""
     R = max(d.run_in for d in drives)
     n_obs = max(d.n_observed for d in drives)
+    if pad_to is not None:
+        R, n_obs = max(R, int(pad_to[0])), max(n_obs, int(pad_to[1]))
     ts, Hs, mask = [], [], np.zeros((len(drives), n_obs), bool)
     for i, d in enumerate(drives):
         t, H = np.asarray(d.t), np.asarray(d.H)
@@ -98,6 +104,9 @@ class JointProblem(AbstractProblem):
     - ``space``: `ParameterSpace.for_loops` (`JointSpace`) for L = len(data) loops.
     - ``sigma``: noise level per loop (a number for all, a sequence, or None: estimated);
       ``priors``: `GaussianPrior` terms (need sigma).
+    - ``pad_to``: (run-in, observed samples): pad every loop to at least these lengths
+      (the shape of other problems whose programs this one should share; see the module
+      docstring). None: to the longest of these loops.
     - ``shard_loops``: spread the loops over all devices (`jaxhyst.sharding.map_sharded`):
       each device simulates its share of the loops, so that one local solve can use
       several devices. ``True`` needs L to be a multiple of the device count (and does
@@ -108,12 +117,11 @@ class JointProblem(AbstractProblem):
     small loops count as much as large ones.
     """
 
-    data: jax.Array  # (N,) valid samples of all loops, concatenated
-    padded: jax.Array  # (L, n_obs)
+    padded: jax.Array  # (L, n_obs): the observations, 0 in the padding
+    valid: jax.Array  # (L, n_obs) bool: observed samples (data: lengths do not recompile)
     drive: Drive  # batched: leaves (L, T)
     actuator: Actuator
     space: ParameterSpace
-    mask: tuple = eqx.field(static=True)
     scales: jax.Array  # (L,) max|data| of each loop (data: a new data set does not recompile)
     outputs: tuple = eqx.field(static=True)
     sigmas: tuple  # (per loop: None, or its σ as an array: a new value does not recompile)
@@ -126,7 +134,7 @@ class JointProblem(AbstractProblem):
                  space: ParameterSpace, output: str | Sequence[str] = "displacement",
                  variant=PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
                  shard_loops: bool = False, sigma=None,
-                 priors: Sequence[GaussianPrior] = ()):
+                 priors: Sequence[GaussianPrior] = (), pad_to=None):
         L = len(data)
         outputs = (output,) * L if isinstance(output, str) else tuple(output)
         outputs = tuple(output_kind(o).name for o in outputs)
@@ -148,14 +156,13 @@ class JointProblem(AbstractProblem):
                                       substeps=substeps).scale)
             except ValueError as err:
                 raise ValueError(f"Loop {i}: {err}") from None
-        drive, mask = _pad_drives(drives)
+        drive, mask = pad_drives(drives, pad_to)
         padded = np.zeros(mask.shape)
         for i, y in enumerate(data):
             padded[i, : len(y)] = np.asarray(y, dtype=float)
         self.drive = drive
-        self.mask = tuple(map(tuple, mask.tolist()))
+        self.valid = jnp.asarray(mask)
         self.padded = jnp.asarray(padded)
-        self.data = jnp.asarray(padded[mask])
         self.scales = jnp.asarray(scales, dtype=jnp.float64)
         self.outputs = outputs
         self.sigmas = tuple(None if s is None else jnp.asarray(float(s), dtype=jnp.float64)
@@ -175,7 +182,17 @@ class JointProblem(AbstractProblem):
 
     @property
     def n_loops(self) -> int:
-        return len(self.mask)
+        return self.padded.shape[0]
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(L, n_obs) bool: the observed samples (host; the problem must be concrete)."""
+        return np.asarray(self.valid, bool)
+
+    @property
+    def data(self) -> np.ndarray:
+        """(N,) the observed samples of all loops, concatenated (host)."""
+        return np.asarray(self.padded)[self.mask]
 
     @property
     def output(self) -> str:
@@ -189,9 +206,10 @@ class JointProblem(AbstractProblem):
 
     @property
     def groups(self) -> tuple[ResidualGroup, ...]:
-        return tuple(ResidualGroup(f"loop {i} ({o})", int(sum(self.mask[i])),
-                                   output_kind(o).unit, self.sigmas[i], scale=self.scales[i],
-                                   data_size=self.scales[i])
+        n_obs = self.padded.shape[1]
+        return tuple(ResidualGroup(f"loop {i} ({o})", n_obs, output_kind(o).unit,
+                                   self.sigmas[i], scale=self.scales[i],
+                                   data_size=self.scales[i], valid=self.valid[i])
                      for i, o in enumerate(self.outputs))
 
     def simulate(self, params):
@@ -219,13 +237,18 @@ class JointProblem(AbstractProblem):
         return out[:, self.drive.run_in:]
 
     def predict(self, params) -> jax.Array:
-        """Model output at the valid samples of all loops, concatenated (N,)."""
-        return self.predict_loops(params)[np.asarray(self.mask)]
+        """Model output at the valid samples of all loops, concatenated (N,) (the problem
+        concrete: the mask is data; `predict_loops` inside a traced function)."""
+        return self.predict_loops(params)[self.mask]
+
+    def predict_valid(self, params) -> jax.Array:
+        """Model output per loop, (L, n_obs), 0 in the padding (traceable)."""
+        return jnp.where(self.valid, self.predict_loops(params), 0.0)
 
     def group_residuals(self, params) -> tuple:
-        e = self.predict_loops(params) - self.padded
-        mask = np.asarray(self.mask)
-        return tuple(e[i][mask[i]] for i in range(self.n_loops))
+        """Per loop, model − data over its padded length, 0 in the padding (``valid``)."""
+        e = jnp.where(self.valid, self.predict_loops(params) - self.padded, 0.0)
+        return tuple(e[i] for i in range(self.n_loops))
 
     def model(self, params) -> Model:
         """The identified model at ``params`` (this problem's actuator, form and
@@ -236,12 +259,21 @@ class JointProblem(AbstractProblem):
 
     @property
     def observations(self):
-        return self.data
+        """The observations, (L, n_obs), padding included (its values are never used)."""
+        return self.padded
 
     def with_data(self, data) -> JointProblem:
+        """This problem with other observations: (L, n_obs) like `observations`, or the
+        observed samples of all loops concatenated, (N,) (the problem concrete)."""
         data = jnp.asarray(data, dtype=jnp.float64)
-        padded = jnp.zeros_like(self.padded).at[np.asarray(self.mask)].set(data)
-        return eqx.tree_at(lambda q: (q.data, q.padded), self, (data, padded))
+        if data.shape != self.padded.shape:
+            mask = self.mask
+            if data.shape != (int(mask.sum()),):
+                raise ValueError(f"with_data: data of shape {data.shape}; give "
+                                 f"{self.padded.shape} (loops × padded samples) or "
+                                 f"({int(mask.sum())},) (the observed samples).")
+            data = jnp.zeros_like(self.padded).at[mask].set(data)
+        return eqx.tree_at(lambda q: q.padded, self, jnp.where(self.valid, data, 0.0))
 
 
 def space_bounds_of_loop(space: ParameterSpace) -> Bounds:

@@ -60,13 +60,19 @@ def _concrete(x):
 class ResidualGroup(eqx.Module):
     """Metadata of one group of residuals (static: part of a problem's structure).
 
-    - ``name``; ``size`` (number of residuals); ``unit`` of model − data.
+    - ``name``; ``size`` (number of residuals: the length of the group's entry in the
+      residual vector); ``unit`` of model − data.
+    - ``valid``: None (every residual observed), or a boolean array of shape (size,)
+      marking the observed ones (data, not structure: padding for a common shape, so that
+      problems whose groups observe different numbers of samples share one program). The
+      group's residuals must be 0 where it is False; every statistic counts only the
+      observed ones (``count``; `observed`).
     - ``sigma``: known noise standard deviation (unit); ``None`` to estimate it from the
       fit (the identifiability report does, per group).
     - ``weight``: relative weight when ``sigma`` is not given.
     - ``scale``: the data's size (unit): max|data| for a `Problem`; for a
       `ResidualProblem` the largest RMS of the group's residuals at the box's centre and
-      quarter points unless given. The normaliser without sigma is scale·√(size/weight).
+      quarter points unless given. The normaliser without sigma is scale·√(count/weight).
     - ``data_size``: max|data| of the group (unit) where the problem knows it (the
       built-in problems), else None: results say how far a fit is from its data.
     """
@@ -78,6 +84,7 @@ class ResidualGroup(eqx.Module):
     weight: float = eqx.field(static=True, default=1.0, converter=_host_float)
     scale: float | jax.Array = 1.0  # and scale do not recompile a fit)
     data_size: float | jax.Array | None = None
+    valid: jax.Array | None = None
 
     def __check_init__(self):
         sigma, scale = _concrete(self.sigma), _concrete(self.scale)
@@ -95,11 +102,29 @@ class ResidualGroup(eqx.Module):
                              f"{self.scale!r}.")
 
     @property
+    def count(self) -> int | jax.Array:
+        """The number of observed residuals (``size`` unless ``valid`` marks padding; a
+        traced number inside a traced function)."""
+        if self.valid is None:
+            return self.size
+        try:
+            return int(np.sum(np.asarray(self.valid)))
+        except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):
+            return jnp.sum(self.valid)
+
+    def observed(self, r):
+        """The observed entries of this group's residuals ``r`` (host arrays: NumPy)."""
+        r = np.asarray(r).ravel()
+        return r if self.valid is None else r[np.asarray(self.valid, bool).ravel()]
+
+    @property
     def normaliser(self) -> float | jax.Array:
         """What a residual is divided by in the problem's residual vector."""
         if self.sigma is not None:
             return self.sigma
-        return self.scale * np.sqrt(self.size / self.weight)
+        count = self.count
+        root = np.sqrt if isinstance(count, int) else jnp.sqrt
+        return self.scale * root(count / self.weight)
 
 
 class GaussianPrior(eqx.Module):
@@ -185,7 +210,13 @@ class AbstractProblem(eqx.Module):
 
     @property
     def n_residuals(self) -> int:
+        """The length of the residual vector (padding included)."""
         return sum(g.size for g in self.groups) + len(self.priors)
+
+    @property
+    def n_observed(self) -> int:
+        """The number of observed residuals (the statistics' N: padding excluded)."""
+        return sum(int(g.count) for g in self.groups) + len(self.priors)
 
     def residuals_params(self, params) -> Float[Array, " R"]:
         """The problem's residual vector at a parameter pytree (see the module doc)."""

@@ -237,4 +237,7 @@ def sampling_error(problem, params) -> float | None:
 
 @eqx.filter_jit
 def _predictions(problem, finer, params):
+    # (a joint problem's mask is data: its padded predictions, 0 in the padding)
+    if hasattr(problem, "predict_valid"):
+        return problem.predict_valid(params), finer.predict_valid(params)
     return problem.predict(params), finer.predict(params)

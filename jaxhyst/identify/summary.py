@@ -14,17 +14,18 @@ from .space import u_from_z
 def _stats(groups, residuals):
     """Per-group rms and max |e|, and the overall ones when all groups share a unit."""
     out = {}
+    residuals = [g.observed(np.asarray(e, dtype=float)) for g, e in
+                 zip(groups, residuals, strict=True)]  # (padding dropped)
     for g, e in zip(groups, residuals, strict=True):
-        e = np.asarray(e, dtype=float).ravel()
         out[g.name] = {"rms": float(np.sqrt(np.mean(e**2))), "max_abs": float(np.max(np.abs(e))),
                        "unit": g.unit,
-                       "sigma": None if g.sigma is None else float(g.sigma), "size": g.size}
+                       "sigma": None if g.sigma is None else float(g.sigma), "size": e.size}
         if g.data_size is not None:  # max|data|: how far the fit is from its data
             out[g.name]["data_scale"] = float(g.data_size)
     units = {g.unit for g in groups}
     if len(units) != 1:
         return out, None, None, None
-    e = np.concatenate([np.asarray(r, dtype=float).ravel() for r in residuals])
+    e = np.concatenate(residuals)
     return out, float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e))), float(np.sum(e**2))
 
 
