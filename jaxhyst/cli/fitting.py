@@ -13,11 +13,13 @@ from .spec import CLIError, note
 WIDENINGS, WIDEN = 3, 5.0
 
 
-def widen_derived_box(args, spec, given, loops, problem, result, quiet: bool = False):
+def widen_derived_box(args, spec, given, loops, problem, result, method: str = "lm",
+                      quiet: bool = False, batch: bool = True):
     """A box derived from the data is no constraint of the data: where a fit ends on one
     of its bounds (not one the user gave, not a physical limit), widen that bound
-    `WIDEN`-fold (within the physical range) and refit from the result with LM, up to
-    `WIDENINGS` times. The loss coefficients' and a form's own parameters' boxes
+    `WIDEN`-fold (within the physical range) and refit from the result (`refit_from`:
+    the fit's own batch of starts, so that nothing new compiles; ``batch=False``: one LM
+    solve), up to `WIDENINGS` times. The loss coefficients' and a form's own parameters' boxes
     (``spec["extra_bounds"]``) likewise. Returns the last (result, problem)."""
     import numpy as np
 
@@ -60,7 +62,8 @@ def widen_derived_box(args, spec, given, loops, problem, result, quiet: bool = F
         spec["bounds"] = {n: v for n, v in box.items() if n not in extra}
         spec["extra_bounds"] = {n: box[n] for n in extra}
         problem = build_problem(spec, loops)
-        result = refine_from(args, problem, result.params, quiet=quiet)
+        result = (refit_from(args, problem, result.params, method, quiet=quiet) if batch
+                  else refine_from(args, problem, result.params, quiet=quiet))
     return result, problem
 
 
@@ -155,6 +158,31 @@ def fit_by_options(args, problem, method, start, quiet: bool = False, seeds=()):
         note(method, f"{len(starts)} random starts in one vmapped batch")
     return jh.multistart(problem, starts, solver=method, max_steps=args.max_steps or 200,
                          progress=meter, report=_report(args, quiet))
+
+
+def refit_from(args, problem, params, method: str, quiet: bool = False):
+    """``problem`` fitted again from ``params`` (which another fit reached) by the batch
+    the options' fit used — ``params`` as its first start, the rest random in the box —
+    so that the program compiled for that fit serves (the box is data); a hybrid or a
+    single start: one LM solve (`refine_from`)."""
+    import numpy as np
+
+    import jaxhyst as jh
+    from jaxhyst.progress import TextProgressMeter
+
+    if method in HYBRID or args.start or args.starts <= 1:
+        return refine_from(args, problem, params, quiet=quiet)
+    u = np.asarray(problem.space.u_from_params(params))
+    rest = np.random.default_rng(args.seed + 1).uniform(0.0, 1.0,
+                                                      (args.starts - 1, u.shape[-1]))
+    progress = 0 if quiet else args.progress
+    if progress:
+        note(method, f"{args.starts} starts in one batch: the previous fit and "
+                     f"{args.starts - 1} random")
+    meter = TextProgressMeter(every=0, interval=2.0) if progress else False
+    return jh.multistart(problem, np.vstack([u[None], rest]), solver=method,
+                         max_steps=args.max_steps or 200, progress=meter,
+                         report=_report(args, quiet))
 
 
 def refine_from(args, problem, params, what: str = "from the previous fit",

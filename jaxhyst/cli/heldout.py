@@ -95,7 +95,7 @@ def _fit(args, spec, given, loops, method, seeds=()):
     result = fit_by_options(args, problem, method, None, quiet=True, seeds=seeds)
     if where and where.startswith("bounds derived"):
         result, problem = widen_derived_box(args, spec, given, loops, problem, result,
-                                            quiet=True)
+                                            method, quiet=True)
     return result, problem, spec
 
 
@@ -125,23 +125,13 @@ def _again(args, fit, params, method, source: str, rms: float, index):
     import jax
     import numpy as np
 
-    import jaxhyst as jh
-
-    from .fitting import refine_from
-    from .options import HYBRID
+    from .fitting import refit_from
 
     result, problem, spec = fit
     note("leave-one-out", f"{spec['variant']}: loop {index} alone again, {source} (it "
          f"predicts the loop better: {rms:.4g} against {result.rms_error:.4g})")
     params = jax.tree.map(lambda x: x[0] if np.ndim(x) else x, params)  # (shared values)
-    if method in HYBRID or args.starts <= 1:
-        again = refine_from(args, problem, params, quiet=True)
-    else:
-        u = np.asarray(problem.space.u_from_params(params))
-        rest = np.random.default_rng(args.seed + 1).uniform(0.0, 1.0,
-                                                          (args.starts - 1, u.shape[-1]))
-        again = jh.multistart(problem, np.vstack([u[None], rest]), solver=method,
-                              max_steps=args.max_steps or 200, report=False)
+    again = refit_from(args, problem, params, method, quiet=True)
     return (again, problem, spec) if again.rms_error < result.rms_error else fit
 
 

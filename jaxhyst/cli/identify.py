@@ -275,10 +275,12 @@ def run(args) -> int:
             problem = build_problem(spec, loops)
     if where and args.progress:  # (after every check of the input: errors stay one line)
         note("identify", where)
-    result = decimated_first(args, spec, loops, problem, method) or \
-        fit_by_options(args, problem, method, start)
-    if where and where.startswith("bounds derived"):
-        result, problem = widen_derived_box(args, spec, given, loops, problem, result)
+    thinned = decimated_first(args, spec, loops, problem, method)
+    result = thinned or fit_by_options(args, problem, method, start)
+    if where and where.startswith("bounds derived"):  # (after a thinned fit: its polish's
+        result, problem = widen_derived_box(  # single LM solve, not a batch on all samples)
+            args, spec, given, loops, problem, result, "lm" if thinned else method,
+            batch=thinned is None)
     if stop_requested() and result.result != "interrupted":  # Ctrl-C during a local solve
         result = result.with_outcome("interrupted")
     d = result.to_dict()
