@@ -41,7 +41,10 @@ def padded_drive(drive, pad_to):
 
     from jaxhyst.identify.joint import pad_drives
 
-    return jax.tree.map(lambda x: x[0], pad_drives([drive], pad_to)[0])
+    try:
+        return jax.tree.map(lambda x: x[0], pad_drives([drive], pad_to)[0])
+    except ValueError:  # (a drive that does not start at H = 0 cannot be padded in front)
+        return drive
 
 
 def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> list:
@@ -52,9 +55,9 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     {"frequency": …, "temperature": …} overriding the file's); shared joint parameters
     are used as they are; a single-loop fit's parameters likewise. The model is the
     fit's: its form, loss coefficients and the form's own parameters. ``source``: the
-    file the loops come from (for the messages; the fitted data file by default). Where
-    ``spec`` pads its problems to a common shape (``pad_to``: a leave-one-out), each
-    loop is simulated padded to it (one program for loops of any length)."""
+    file the loops come from (for the messages; the fitted data file by default). Each
+    loop is simulated padded to the longest of ``loops`` — or to ``spec``'s common shape
+    (``pad_to``: a leave-one-out) — so that loops of any length share one program."""
     import jax
     import numpy as np
 
@@ -66,8 +69,13 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     records = records_of(fitted)
     kind = output_kind(records.output if records.output != "mixed" else records.outputs[0])
     actuator = records.actuator
+    name = next((q for q, k in SIGNAL_OUTPUTS.items() if k == kind.name), None)
+    drives = [loop_drive(spec, lp, name or "B", actuator, source) for lp in loops]
+    pad_to = spec.get("pad_to") or (None if len(drives) < 2 else
+                                    [max(d.run_in for d in drives),
+                                     max(d.n_observed for d in drives)])
     out = []
-    for lp in loops:
+    for lp, drive in zip(loops, drives, strict=True):
         if isinstance(fitted, jh.ConditionProblem):
             try:
                 tree = fitted.at(params, loop_conditions({**spec, "data": source or
@@ -86,9 +94,7 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
         else:
             tree = params
         p, losses, form = split_parameters(tree)
-        name = next((q for q, k in SIGNAL_OUTPUTS.items() if k == kind.name), None)
-        drive = loop_drive(spec, lp, name or "B", actuator, source)
-        run = drive if spec.get("pad_to") is None else padded_drive(drive, spec["pad_to"])
+        run = drive if pad_to is None else padded_drive(drive, pad_to)
         sim = jh.simulate(p, actuator, run, records.variant if form is None else form,
                           records.substeps, losses)
         predicted = np.asarray(kind.of(sim))[run.run_in:run.run_in + drive.n_observed]
