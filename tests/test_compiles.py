@@ -115,3 +115,51 @@ def test_a_joint_fit_compiles_nothing_for_new_data_a_new_frequency_box_or_noise_
         _fit(500.0, 150.0, wider, {"eddy": (0.0, 0.4), "excess": (0.0, 1.0)},
              sigma=[2e-3, 3e-3, 2e-3])
     assert names == []
+
+
+@pytest.mark.filterwarnings("ignore::jaxhyst.identify.SamplingWarning")
+def test_loops_of_other_lengths_padded_alike_share_a_program_and_cost_what_they_did():
+    """A joint problem's observed samples are data (`JointProblem.valid`): two problems
+    over loops of other lengths, padded to one shape (``pad_to``, as a leave-one-out
+    pads its folds), evaluate by one compiled program — and the padding changes no
+    number: the cost is the two loops' single-loop costs summed (each normalised by its
+    own observed samples), and every statistic counts the observed samples only."""
+    import equinox as eqx
+
+    from jaxhyst.identify.joint import NO_ACTUATOR
+
+    box = jh.Bounds(SOFT.replace(a=10.0, k=5.0, c=0.05), SOFT.replace(a=100.0, k=60.0, c=0.9))
+    fixed = {n: v for n, v in FIXED.items() if n != "Ms"}
+
+    def loops(samples):
+        out = []
+        for n, amplitude in zip(samples, (60.0, 150.0), strict=True):
+            d = jh.sinusoidal_field(1.0, amplitude, 0.0, samples_per_period=n)
+            sim = jh.simulate(SOFT, NO_ACTUATOR, d, jh.ClassicJA(), substeps=2)
+            out.append((d, np.asarray(d.observed(MU0 * (sim.H + sim.M)))))
+        return out
+
+    first, second = loops((30, 40)), loops((36, 44))
+    every = [d for d, _ in first + second]
+    pad_to = (max(d.run_in for d in every), max(d.n_observed for d in every))
+
+    def joint(pairs, pad=None):
+        return jh.JointProblem([y for _, y in pairs], [d for d, _ in pairs], NO_ACTUATOR,
+                               jh.ParameterSpace.for_loops(box, 2, fixed=fixed),
+                               output="flux_density", variant=jh.ClassicJA(), substeps=2,
+                               pad_to=pad)
+
+    cost = eqx.filter_jit(lambda problem, z: problem.cost(z))
+    a, b = joint(first, pad_to), joint(second, pad_to)
+    z = np.full(a.space.n_free, 0.3)
+    value = float(cost(a, z))
+    with counting() as names:
+        cost(b, z)
+    assert names == []
+    # the padding changes no number: against each loop as a single-loop problem
+    singles = [jh.Problem(y, d, NO_ACTUATOR, jh.ParameterSpace(box, fixed), substeps=2,
+                          output="flux_density", variant=jh.ClassicJA()) for d, y in first]
+    assert value == pytest.approx(sum(float(p.cost(z)) for p in singles), rel=1e-12)
+    assert value == pytest.approx(float(joint(first).cost(z)), rel=1e-12)
+    assert a.n_observed == sum(d.n_observed for d, _ in first) < a.n_residuals
+    assert [int(g.count) for g in a.groups] == [d.n_observed for d, _ in first]

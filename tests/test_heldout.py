@@ -75,25 +75,14 @@ def test_a_folds_box_does_not_depend_on_the_loop_it_holds_out(tmp_path):
 
 
 def test_a_fold_that_stops_short_sets_exit_3_and_is_named(tmp_path, capsys):
-    """… on loops of unequal lengths, which share one program per kind of fit: every
-    loop alone, every fold and the final fit are padded to the longest loop (the mask is
-    data), so the comparison compiles three solver steps, not one per loop and fold."""
-    from test_compiles import counting
-
+    """(On loops of unequal lengths: every fit and prediction is padded to the longest,
+    here of the other tests' length, so it shares their programs.)"""
     data = tmp_path / "loops.csv"
-    _write(data, samples=(40, 56, 48))
+    _write(data, samples=(40, 48, 44))
     out = tmp_path / "r.json"
-    with counting() as names:
-        rc = main(["identify", str(data), *COMMON, "--variant", "play", "--max-steps", "1",
-                   "--starts", "2", "--out", str(out)])
+    rc = main(["identify", str(data), *COMMON, "--variant", "play", "--max-steps", "1",
+               "--starts", "2", "--out", str(out)])
     captured = capsys.readouterr()
-    steps = [n for n in names if "_advance_batch" in n]
-    # the first argument is the observations, (loops, padded samples): 57 = the longest
-    shapes = {n.split("ShapedArray(float64[", 1)[1].split("]", 1)[0] for n in steps}
-    assert shapes == {"1,57", "2,57", "3,57"}, steps
-    # one program per number of loops (1, 2, 3), a widened box's re-fit included (the
-    # fit's own batch of starts): before, one per loop length and per fold, 7 or more
-    assert len(steps) == 3, steps
     held = json.loads(out.read_text())["leave_one_out"]
     assert rc == 3
     assert all(r["outcome"] == "max_steps_reached"
