@@ -274,7 +274,8 @@ def fit_replicates(problem, datasets, start, solver: str = "lm", max_steps: int 
                    batch_size: int = 64, progress: bool = False,
                    shard: bool | None = None) -> dict:
     """Fit each replicate of ``datasets`` (the problem's observations stacked along a new
-    first axis: R × N for a single-signal problem) from ``start``, in vmapped batches of
+    first axis: R × N for a single-signal problem, R × loops × padded samples for a joint
+    one — or R × N, its observed samples concatenated) from ``start``, in vmapped batches of
     ``batch_size``. ``shard=True`` spreads each batch over the devices (``batch_size`` a
     multiple of the device count, see `jaxhyst.sharding`); the default (None or False)
     does not: on CPU host devices the sharded batch is slower (benchmarks/RESULTS.md).
@@ -288,6 +289,12 @@ def fit_replicates(problem, datasets, start, solver: str = "lm", max_steps: int 
     ``interrupted``: True when a stop request ended the fits early (then only the
     replicates fitted so far, in order). Ctrl-C raises `jaxhyst.Interrupted` carrying
     that dict. ``progress``: a progress meter or True (a line per batch)."""
+    mask = getattr(getattr(problem, "records", problem), "mask", None)
+    if isinstance(mask, np.ndarray) and np.ndim(datasets) == 2 and \
+            np.shape(datasets)[1] == int(mask.sum()):  # (the observed samples)
+        padded = np.zeros((np.shape(datasets)[0], *mask.shape))
+        padded[:, mask] = np.asarray(datasets, dtype=float)
+        datasets = padded
     leaves = jax.tree.leaves(datasets)
     ref = jax.tree.leaves(problem.observations)
     if len(leaves) != len(ref) or any(np.shape(a)[1:] != np.shape(r)
