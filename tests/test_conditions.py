@@ -133,6 +133,11 @@ def test_smooth_in_frequency_recovers_its_generating_functions_and_predicts_a_he
                                    variant=jh.ClassicJA(), substeps=4)
     assert problem.held_out_errors(res.params, held_records, jh.Conditions(
         frequency=[f_held])) == [pytest.approx(err_smooth, rel=1e-9)]
+    padded = jh.JointProblem([M_held], [drive], NO_ACTUATOR, jh.per_record_space(bounds, 1),
+                             output="magnetization", variant=jh.ClassicJA(), substeps=4,
+                             pad_to=(drive.run_in + 3, drive.n_observed + 5))
+    assert problem.held_out_errors(res.params, padded, jh.Conditions(  # (padding: no sample)
+        frequency=[f_held])) == [pytest.approx(err_smooth, rel=1e-9)]
     # … against a fit at the nearest measured frequency (200 Hz), used as it is
     near = 1
     single = jh.Problem(data[fit_idx.index(near)], loops[near][0], NO_ACTUATOR,

@@ -176,7 +176,8 @@ class ConditionProblem(AbstractProblem):
         (a problem of the same kind over records that were not fitted: their data and
         drives) predicted at their ``conditions``: the held-out error of a prediction."""
         residuals = records.group_residuals(self.at(coefficients, conditions))
-        return [float(jnp.sqrt(jnp.mean(jnp.ravel(r) ** 2))) for r in residuals]
+        return [float(np.sqrt(np.mean(g.observed(r) ** 2)))  # (the padding dropped)
+                for g, r in zip(records.groups, residuals, strict=True)]
 
     def group_residuals(self, params) -> tuple:
         return self.records.group_residuals(self.per_record(params))
