@@ -62,20 +62,20 @@ def _conditions(spec, loops):
             for i in range(len(loops))]
 
 
-def common_shape(spec, loops) -> list | None:
+def comparison_shape(spec, loops) -> list | None:
     """[run-in, observed samples] of the file's longest loops: every problem of a
     comparison (each loop alone, each fold) is padded to it, so that one program serves
     them all however unequal the loops' lengths (None for a B-driven fit)."""
     import jaxhyst as jh
+    from jaxhyst.identify.joint import common_shape
 
     from .spec import loop_drive, loop_signal
 
     if spec.get("driven_by") == "B":
         return None
     actuator = jh.Actuator(**spec["actuator"])
-    drives = [loop_drive(spec, lp, loop_signal(spec, lp, spec.get("output")), actuator)
-              for lp in loops]
-    return [max(d.run_in for d in drives), max(d.n_observed for d in drives)]
+    return list(common_shape([loop_drive(spec, lp, loop_signal(spec, lp, spec.get("output")),
+                                         actuator) for lp in loops]))
 
 
 def _fit(args, spec, given, loops, method, seeds=()):
@@ -270,7 +270,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
 
     conditions = _conditions(spec, loops)
     table, partial, short, curves = {}, False, [], {}
-    pad_to = common_shape(spec, loops)
+    pad_to = comparison_shape(spec, loops)
     for form in forms:
         spec_f = {**spec, **candidate_spec(args, form), "pad_to": pad_to}
         # (a fold's parameters of the same kind as a single loop's: shared, no law)

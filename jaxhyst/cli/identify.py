@@ -279,8 +279,7 @@ def run(args) -> int:
     result = thinned or fit_by_options(args, problem, method, start)
     if where and where.startswith("bounds derived"):  # (after a thinned fit: its polish's
         result, problem = widen_derived_box(  # single LM solve, not a batch on all samples)
-            args, spec, given, loops, problem, result, "lm" if thinned else method,
-            batch=thinned is None)
+            args, spec, given, loops, problem, result, method, batch=thinned is None)
     if stop_requested() and result.result != "interrupted":  # Ctrl-C during a local solve
         result = result.with_outcome("interrupted")
     d = result.to_dict()

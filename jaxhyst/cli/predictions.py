@@ -32,21 +32,6 @@ def error_summary(predicted, data) -> dict:
             "data_scale": float(np.max(np.abs(data)))}
 
 
-def padded_drive(drive, pad_to):
-    """``drive`` padded to at least ``pad_to`` = [run-in, observed samples] (as a joint
-    problem pads its loops: H = 0 in front, the last value held at the end), so that
-    loops of different lengths share one compiled simulation; its observed samples are
-    ``[run_in : run_in + drive.n_observed]``."""
-    import jax
-
-    from jaxhyst.identify.joint import pad_drives
-
-    try:
-        return jax.tree.map(lambda x: x[0], pad_drives([drive], pad_to)[0])
-    except ValueError:  # (a drive that does not start at H = 0 cannot be padded in front)
-        return drive
-
-
 def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> list:
     """The model's prediction and the data of each loop of ``loops`` (`jaxhyst.io.Loop`,
     of the fitted data or new ones), from a fit of ``fitted`` (the problem built from
@@ -62,6 +47,7 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     import numpy as np
 
     import jaxhyst as jh
+    from jaxhyst.identify.joint import common_shape, pad_drive
     from jaxhyst.identify.outputs import output_kind
     from jaxhyst.io import SIGNAL_OUTPUTS
     from jaxhyst.model.paths import split_parameters
@@ -71,9 +57,7 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     actuator = records.actuator
     name = next((q for q, k in SIGNAL_OUTPUTS.items() if k == kind.name), None)
     drives = [loop_drive(spec, lp, name or "B", actuator, source) for lp in loops]
-    pad_to = spec.get("pad_to") or (None if len(drives) < 2 else
-                                    [max(d.run_in for d in drives),
-                                     max(d.n_observed for d in drives)])
+    pad_to = spec.get("pad_to") or (common_shape(drives) if len(drives) > 1 else None)
     out = []
     for lp, drive in zip(loops, drives, strict=True):
         if isinstance(fitted, jh.ConditionProblem):
@@ -94,7 +78,7 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
         else:
             tree = params
         p, losses, form = split_parameters(tree)
-        run = drive if pad_to is None else padded_drive(drive, pad_to)
+        run = drive if pad_to is None else pad_drive(drive, pad_to)
         sim = jh.simulate(p, actuator, run, records.variant if form is None else form,
                           records.substeps, losses)
         predicted = np.asarray(kind.of(sim))[run.run_in:run.run_in + drive.n_observed]
