@@ -163,3 +163,5 @@ def test_loops_of_other_lengths_padded_alike_share_a_program_and_cost_what_they_
     assert value == pytest.approx(float(joint(first).cost(z)), rel=1e-12)
     assert a.n_observed == sum(d.n_observed for d, _ in first) < a.n_residuals
     assert [int(g.count) for g in a.groups] == [d.n_observed for d, _ in first]
+    with pytest.raises(ValueError, match=r"pad_to=\(12, -3\): give \(run-in, observed"):
+        joint(first, (12, -3))

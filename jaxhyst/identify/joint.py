@@ -185,6 +185,11 @@ class JointProblem(AbstractProblem):
                                       substeps=substeps).scale)
             except ValueError as err:
                 raise ValueError(f"Loop {i}: {err}") from None
+        if pad_to is not None and not (
+                np.shape(pad_to) == (2,) and all(isinstance(v, (int, np.integer)) and v >= 0
+                                                 for v in pad_to)):
+            raise ValueError(f"pad_to={pad_to!r}: give (run-in, observed samples), two whole "
+                             "numbers >= 0, or None to pad to the longest loop.")
         drive, mask = pad_drives(drives, pad_to)
         padded = np.zeros(mask.shape)
         for i, y in enumerate(data):
