@@ -190,16 +190,6 @@ def _prior_chi2(problem, points) -> np.ndarray:
     return np.sum(((points[:, idx] - mean) / sd) ** 2, axis=1)
 
 
-@eqx.filter_jit
-def _residuals_at(problem, X):
-    """The raw residuals (model − data, all groups) at each row of free values X."""
-    def one(x):
-        r = problem.group_residuals(problem.space.params_from_free(x))
-        return jnp.concatenate([jnp.ravel(g) for g in r])
-
-    return jax.vmap(one)(X)
-
-
 #: A declared σ whose whitened residuals' rms lies outside [1/SIGMA_RATIO, SIGMA_RATIO]
 #: (in a group of at least `SIGMA_MIN_SIZE` residuals) does not describe the data.
 SIGMA_RATIO, SIGMA_MIN_SIZE = 3.0, 20
