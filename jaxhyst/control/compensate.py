@@ -207,8 +207,7 @@ def _uncompensated(tracking: Tracking, reference: Reference, limits: InputLimits
     z = fit_affine(tracking, shape, mid, half, r, z0)
     # within the same limits as the compensated input: the range and the slew rate
     imap = InputMap(limits, reference.n_samples, reference.dt, reference.periodic)
-    return np.asarray(imap.input(jnp.asarray(imap.coordinates(
-        affine_input(z, shape, mid, half)))))
+    return imap.input_values(imap.coordinates(affine_input(z, shape, mid, half)))
 
 
 def _finer(tracking: Tracking) -> Tracking:
@@ -310,8 +309,7 @@ def compensate(model: Model, reference: Reference, *, current_limit=None,
         limits = InputLimits(lo - pad, hi + pad, None if slew_limit is None else
                              float(slew_limit), given=False)
     imap = InputMap(limits, reference.n_samples, reference.dt, reference.periodic)
-    u_inverse = imap.input(jnp.asarray(imap.coordinates(inverse.u)))
-    u_inverse = np.asarray(u_inverse)
+    u_inverse = imap.input_values(imap.coordinates(inverse.u))
     settled = 0.0
     if reference.periodic:
         periods, settled = settling_periods(tracking, u_inverse)
@@ -343,7 +341,7 @@ def compensate(model: Model, reference: Reference, *, current_limit=None,
         target = r.shape[0] * (tolerance / RESIDUAL_UNIT) ** 2
         z, steps, outcome = refine_input(residuals, imap.coordinates(u_inverse),
                                          int(max_steps), float(target))
-        u = np.asarray(imap.input(jnp.asarray(z)))
+        u = imap.input_values(z)
     y, y_plain = evaluate(tracking, u), evaluate(tracking, u_plain)
     if settled > 1e-6:
         warnings.warn(f"the model's magnetization still moves by {settled:.2g}·Ms per "

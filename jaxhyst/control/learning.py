@@ -198,7 +198,7 @@ class IterativeLearning(eqx.Module):
                              f"sample); got shape {u.shape}.")
         imap = self.residuals.imap
         z = imap.coordinates(u)
-        return LearningState(z=z, input=np.asarray(imap.input(jnp.asarray(z))), iteration=0,
+        return LearningState(z=z, input=imap.input_values(z), iteration=0,
                              errors=(), band=self.initial_band())
 
     def predict(self, state: LearningState) -> np.ndarray:
@@ -338,7 +338,7 @@ class IterativeLearning(eqx.Module):
                                     0.0, factor, band)
             imap = self.residuals.imap
             return dataclasses.replace(
-                state, z=best_z, input=np.asarray(imap.input(jnp.asarray(best_z))),
+                state, z=best_z, input=imap.input_values(best_z),
                 iteration=iteration, errors=errors, reports=(*state.reports, report),
                 stopped=stop, best_z=best_z, best_error=best_error, best_e=best_e,
                 factor=factor, band=band, rejected=rejected, predicted=None, band_limit=limit)
@@ -365,14 +365,14 @@ class IterativeLearning(eqx.Module):
             report = LearningReport(iteration, error, noise, lag, found, "stopped", stop,
                                     None, 0.0, factor, band)
             return dataclasses.replace(
-                state, z=best_z, input=np.asarray(self.residuals.imap.input(
-                    jnp.asarray(best_z))), iteration=iteration, errors=errors,
+                state, z=best_z, input=self.residuals.imap.input_values(best_z),
+                iteration=iteration, errors=errors,
                 reports=(*state.reports, report), stopped=stop, best_z=best_z,
                 best_error=best_error, best_e=best_e, factor=factor, band=band,
                 rejected=rejected, predicted=None, band_limit=limit)
         report = LearningReport(iteration, error, noise, lag, found, action, why, predicted,
                                 step, factor, band)
-        return LearningState(z=z, input=np.asarray(self.residuals.imap.input(jnp.asarray(z))),
+        return LearningState(z=z, input=self.residuals.imap.input_values(z),
                              iteration=iteration, errors=errors,
                              reports=(*state.reports, report), stopped=None, best_z=best_z,
                              best_error=best_error, best_e=best_e, factor=factor,
@@ -390,15 +390,15 @@ class IterativeLearning(eqx.Module):
         J = np.asarray(_jacobian(self.residuals, jnp.asarray(z)))  # (residual units per z)
         target = low_pass(e, ref.dt, band, sigma) / scale
         dz = factor * self.gain * np.linalg.lstsq(J, target, rcond=RCOND)[0]
-        u = np.asarray(imap.input(jnp.asarray(z)))
+        u = imap.input_values(z)
         swing = max(float(np.ptp(u)), 1e-300)
-        u_next = np.asarray(imap.input(jnp.asarray(z + dz)))
+        u_next = imap.input_values(z + dz)
         for _ in range(2 if reach is not None else 0):  # (the map to the input bends)
             s = np.sqrt(np.mean((u_next - u) ** 2))
             if s <= reach * error * swing:
                 break
             dz = dz * (reach * error * swing / s)
-            u_next = np.asarray(imap.input(jnp.asarray(z + dz)))
+            u_next = imap.input_values(z + dz)
         z_next = z + dz
         # the model's prediction of the error after the step (linear in δz)
         predicted_e = (e / scale - J @ (z_next - z)) * scale

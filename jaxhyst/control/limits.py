@@ -165,6 +165,16 @@ class InputMap(eqx.Module):
             w = w0 + jnp.concatenate([jnp.zeros((1,), z.dtype), jnp.cumsum(steps)[: self.n - 1]])
         return self.limits.mid + self.limits.half * sat(w)
 
+    def values(self, z) -> tuple[np.ndarray, np.ndarray]:
+        """`input` and `extra_residuals` at z as host values, by one compiled program
+        (called op by op, the map compiles a dozen single operations in each process)."""
+        u, extra = _input_and_extra(self, jnp.asarray(z))
+        return np.asarray(u), np.asarray(extra)
+
+    def input_values(self, z) -> np.ndarray:
+        """`input` at z as host values (`values`)."""
+        return self.values(z)[0]
+
     def extra_residuals(self, z) -> Float[Array, " k"]:
         """Residuals the map adds to a least-squares problem: MEAN_STEP_WEIGHT·s̄ for a
         periodic slew map (pins the one direction of z that moves no input); none else."""
@@ -201,3 +211,8 @@ class InputMap(eqx.Module):
         closed = np.append(w, w[0]) if self.periodic else w
         v = sat_inverse(np.diff(closed) / float(self.step))
         return np.concatenate([w[:1], v])
+
+
+@eqx.filter_jit
+def _input_and_extra(imap: InputMap, z):
+    return imap.input(z), imap.extra_residuals(z)

@@ -100,6 +100,17 @@ def fit_affine(tracking: Tracking, shape, mid: float, half: float, r, z0,
 CHUNK, PROGRESS = 10, 0.01
 
 
+def _cost(residuals: TrackingResiduals, z) -> float:
+    """Σr² of ``residuals`` at z, the model run by the tracking's compiled forward program
+    (`evaluate`, which compensate runs anyway) and the map by its own small one
+    (`InputMap.values`): called op by op, the residuals compile a simulation program of
+    their own and a few dozen single operations."""
+    u, extra = residuals.imap.values(z)
+    e = (evaluate(residuals.tracking, u) - np.asarray(residuals.r)) / (
+        float(residuals.scale) * RESIDUAL_UNIT)
+    return float(e @ e + extra @ extra)
+
+
 def refine_input(residuals: TrackingResiduals, z0, max_steps: int, target: float):
     """Levenberg–Marquardt on the tracking error from z0, looked at every `CHUNK` steps:
     it ends when it reaches the ``target`` Σr² or converges (``successful``), when a
@@ -108,13 +119,13 @@ def refine_input(residuals: TrackingResiduals, z0, max_steps: int, target: float
     (``max_steps_reached``) or on Ctrl-C (``interrupted``). Returns (z, steps,
     outcome)."""
     z, steps = jnp.asarray(z0), 0
-    cost = float(jnp.sum(residuals(z) ** 2))
+    cost = _cost(residuals, z)
     target = jnp.asarray(target, dtype=jnp.float64)  # (data: a new tolerance compiles nothing)
     while True:
         z_new, ok, n = least_squares(residuals, z, min(CHUNK, max_steps - steps), RTOL,
                                       ATOL, target)
         steps += int(n)
-        new_cost = float(jnp.sum(residuals(z_new) ** 2))
+        new_cost = _cost(residuals, z_new)
         if new_cost <= cost:
             z = z_new
         if bool(ok):
