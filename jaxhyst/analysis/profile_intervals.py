@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..identify import solve_traced
+from ..identify.problem import cost_at
 from ..identify.result import stopped_short
 from ..identify.solvers import make_solver
 from ..identify.space import u_from_z, z_from_u
@@ -100,7 +101,7 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
     x_hat = np.asarray(space.free_values(params), dtype=float)
     lower, upper = np.asarray(space.lower, float), np.asarray(space.upper, float)
     scale = np.asarray(report.scale, float)
-    cost0 = float(np.sum(np.asarray(problem.residuals(space.z_from_params(params))) ** 2))
+    cost0 = float(cost_at(problem, space.z_from_params(params)))
     sigma2 = _noise_variance(problem, cost0, inflation)
     held = [names.index(n) for n in (report.at_bound or {})]
     C = held_at_bounds(np.asarray(report.cov_log, float), held)

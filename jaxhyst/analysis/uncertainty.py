@@ -27,6 +27,7 @@ import numpy as np
 from .._driver import DONE, KEYBOARD, drive
 from .._interrupt import Interrupted
 from ..identify import outcome_name, solve_traced, start_z
+from ..identify.problem import cost_at
 from ..identify.result import bound_status, stopped_short
 from ..identify.solvers import make_solver
 from ..identify.space import u_from_z
@@ -172,7 +173,7 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
     if how != DONE:  # a profile needs every point of its grid
         raise KeyboardInterrupt
     theta = np.asarray(space.flat_from_free(jnp.asarray(x)))
-    best = float(_cost_at(problem, space.z_from_params(params)))
+    best = float(cost_at(problem, space.z_from_params(params)))
     c_min = min(best, float(np.nanmin(costs)))
     if all(g.sigma is not None for g in problem.groups):
         sigma2 = 1.0  # the cost is a chi-square
@@ -192,11 +193,6 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
                              roundoff=bool(roundoff), unresolved=bool(unresolved),
                              fit_above=float((best - c_min) / sigma2) if sigma2 > 0 and
                              stopped_short(best, c_min) else 0.0)
-
-
-@eqx.filter_jit
-def _cost_at(problem, z):
-    return problem.cost(z)
 
 
 def _gn_std_errors(problem, x):

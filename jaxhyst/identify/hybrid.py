@@ -54,7 +54,7 @@ from ..names import HYBRID_NAMES
 from ..sharding import map_sharded, shardable, vmap_blocked
 from ._stepped import SteppedSolve, solve_traced
 from .ga import GAState, bcga_offspring, decode, fcga_offspring
-from .problem import AbstractProblem
+from .problem import AbstractProblem, cost_at
 from .result import RESULTS, member, outcome_name
 from .solvers import initial_step_size, make_solver, solver_name, with_initial_step_size
 from .space import u_from_z, z_from_u
@@ -227,7 +227,7 @@ class HybridGA(eqx.Module):
             return z, outcome or RESULTS.nonlinear_max_steps_reached, info, DONE
         if stop_requested():  # stopped before the check began
             return z, RESULTS.interrupted, info, STOPPED
-        before = float(_cost_at(problem, z))
+        before = float(cost_at(problem, z))
         found, how = _final_solve(problem, make_solver("lm"), z, int(self.check_steps), meter,
                                   f"{self.name} check")
         info["convergence_check"] = {"result": found["result"], "steps": found["steps"],
@@ -254,11 +254,6 @@ _z_from_u = jax.jit(z_from_u)
 def best_z(state: GAState) -> np.ndarray:
     """The solver coordinates z of the best point of ``state``."""
     return np.asarray(_z_from_u(state.best_u))
-
-
-@eqx.filter_jit
-def _cost_at(problem, z):
-    return problem.cost(z)
 
 
 def _final_solve(problem, solver, z0, max_steps: int, meter, label: str):

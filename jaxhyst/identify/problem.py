@@ -161,6 +161,14 @@ def check_problem(problem, what: str = "problem") -> None:
                         "jaxhyst.ResidualProblem from your residual function.")
 
 
+@eqx.filter_jit
+def cost_at(problem, z) -> jax.Array:
+    """``problem.cost(z)`` by one compiled program, for host code that needs a cost at a
+    point (called op by op, a cost compiles a simulation program and a few dozen single
+    operations in every process)."""
+    return problem.cost(z)
+
+
 class AbstractProblem(eqx.Module):
     """The protocol of an identification problem (see the module docstring).
 
