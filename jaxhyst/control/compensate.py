@@ -82,7 +82,7 @@ class Compensation:
       error stopped falling — what is left is beyond the actuator —,
       ``max_steps_reached``, ``interrupted`` or ``not refined``), ``seconds``: the wall
       time of the call (the first call for a
-      reference of a new length compiles, ~10 s; later ones reuse the programs),
+      reference of a new length compiles its programs, seconds on a CPU; later ones reuse them),
       ``run_in_periods`` of a periodic reference.
     """
 
