@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import warnings
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -96,6 +97,28 @@ def test_every_input_of_the_map_is_inside_its_limits(periodic):
     feasible = 0.5 + 1.5 * np.sin(2 * np.pi * np.arange(64) / 64)  # slew 0.15 per sample
     back = np.asarray(imap.input(jnp.asarray(imap.coordinates(feasible))))
     assert np.max(np.abs(back - feasible)) < 1e-6
+
+
+@pytest.mark.parametrize("periodic", [True, False])
+def test_the_refinements_host_cost_is_the_sum_of_its_squared_residuals(periodic):
+    """`TrackingResiduals.cost` (the forward program and the map's own) against the
+    residuals traced whole, with the slew map's extra residual where it has one."""
+    from jaxhyst.control.refine import TrackingResiduals
+
+    tracking = Tracking.of(MODEL, SINE, 2)
+    imap = InputMap(InputLimits.of(LIMIT, slew=3e7), SINE.n_samples, SINE.dt, periodic)
+    residuals = TrackingResiduals(tracking, imap, jnp.asarray(SINE.displacement),
+                                  jnp.asarray(SINE.scale))
+    z = 0.3 * np.random.default_rng(2).standard_normal(imap.size)
+    traced = eqx.filter_jit(lambda res, z: res(z))
+    r = np.asarray(traced(residuals, jnp.asarray(z)))
+    assert r.shape[0] == SINE.n_samples + periodic  # (the periodic map's extra residual)
+    assert residuals.cost(z) == pytest.approx(float(r @ r), rel=1e-12)
+    # the model's own output as the reference: what is left is the map's extra residual
+    own = dataclasses.replace(residuals, r=jnp.asarray(evaluate(tracking, imap.input_values(z))))
+    r = np.asarray(traced(own, jnp.asarray(z)))
+    assert own.cost(z) == pytest.approx(float(r @ r), rel=1e-6, abs=1e-20)
+    assert (r[-1] ** 2 > 0.99 * (r @ r) > 0) if periodic else (r @ r < 1e-20)
 
 
 @pytest.fixture(scope="module")

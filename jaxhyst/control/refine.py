@@ -38,6 +38,16 @@ class TrackingResiduals(eqx.Module):
         e = (y - self.r) / (self.scale * RESIDUAL_UNIT)
         return jnp.concatenate([e, self.imap.extra_residuals(z)])
 
+    def cost(self, z) -> float:
+        """Σr² of these residuals at z (host values), the model run by the tracking's
+        compiled forward program (`evaluate`, which compensate runs anyway) and the map by
+        its own small one (`InputMap.values`): called op by op, the residuals would compile
+        a simulation program of their own and a few dozen single operations."""
+        u, extra = self.imap.values(z)
+        e = (evaluate(self.tracking, u) - np.asarray(self.r)) / (
+            float(self.scale) * RESIDUAL_UNIT)
+        return float(e @ e + extra @ extra)
+
 
 @eqx.filter_jit
 def least_squares(residuals, z0, max_steps, rtol, atol, target):
@@ -100,17 +110,6 @@ def fit_affine(tracking: Tracking, shape, mid: float, half: float, r, z0,
 CHUNK, PROGRESS = 10, 0.01
 
 
-def _cost(residuals: TrackingResiduals, z) -> float:
-    """Σr² of ``residuals`` at z, the model run by the tracking's compiled forward program
-    (`evaluate`, which compensate runs anyway) and the map by its own small one
-    (`InputMap.values`): called op by op, the residuals compile a simulation program of
-    their own and a few dozen single operations."""
-    u, extra = residuals.imap.values(z)
-    e = (evaluate(residuals.tracking, u) - np.asarray(residuals.r)) / (
-        float(residuals.scale) * RESIDUAL_UNIT)
-    return float(e @ e + extra @ extra)
-
-
 def refine_input(residuals: TrackingResiduals, z0, max_steps: int, target: float):
     """Levenberg–Marquardt on the tracking error from z0, looked at every `CHUNK` steps:
     it ends when it reaches the ``target`` Σr² or converges (``successful``), when a
@@ -119,13 +118,13 @@ def refine_input(residuals: TrackingResiduals, z0, max_steps: int, target: float
     (``max_steps_reached``) or on Ctrl-C (``interrupted``). Returns (z, steps,
     outcome)."""
     z, steps = jnp.asarray(z0), 0
-    cost = _cost(residuals, z)
+    cost = residuals.cost(z)
     target = jnp.asarray(target, dtype=jnp.float64)  # (data: a new tolerance compiles nothing)
     while True:
         z_new, ok, n = least_squares(residuals, z, min(CHUNK, max_steps - steps), RTOL,
                                       ATOL, target)
         steps += int(n)
-        new_cost = _cost(residuals, z_new)
+        new_cost = residuals.cost(z_new)
         if new_cost <= cost:
             z = z_new
         if bool(ok):
