@@ -154,8 +154,20 @@ def fit_by_options(args, problem, method, start, quiet: bool = False, seeds=()):
     starts = np.random.default_rng(args.seed).uniform(0.0, 1.0, (args.starts, n))
     for k, params in enumerate(list(seeds)[:args.starts - 1]):
         starts[k] = np.asarray(problem.space.u_from_params(params))
+    return _batch(args, problem, method, starts, quiet,
+                  f"{len(starts)} random starts in one vmapped batch")
+
+
+def _batch(args, problem, method, starts, quiet: bool, what: str):
+    """The multi-start fit of ``starts`` (box coordinates, one row each) that the options
+    ask for, said as ``what`` where progress is shown."""
+    import jaxhyst as jh
+    from jaxhyst.progress import TextProgressMeter
+
+    progress = 0 if quiet else args.progress
     if progress:
-        note(method, f"{len(starts)} random starts in one vmapped batch")
+        note(method, what)
+    meter = TextProgressMeter(every=0, interval=2.0) if progress else False
     return jh.multistart(problem, starts, solver=method, max_steps=args.max_steps or 200,
                          progress=meter, report=_report(args, quiet))
 
@@ -167,22 +179,14 @@ def refit_from(args, problem, params, method: str, quiet: bool = False):
     single start: one LM solve (`refine_from`)."""
     import numpy as np
 
-    import jaxhyst as jh
-    from jaxhyst.progress import TextProgressMeter
-
     if method in HYBRID or args.start or args.starts <= 1:
         return refine_from(args, problem, params, quiet=quiet)
     u = np.asarray(problem.space.u_from_params(params))
     rest = np.random.default_rng(args.seed + 1).uniform(0.0, 1.0,
                                                       (args.starts - 1, u.shape[-1]))
-    progress = 0 if quiet else args.progress
-    if progress:
-        note(method, f"{args.starts} starts in one batch: the previous fit and "
-                     f"{args.starts - 1} random")
-    meter = TextProgressMeter(every=0, interval=2.0) if progress else False
-    return jh.multistart(problem, np.vstack([u[None], rest]), solver=method,
-                         max_steps=args.max_steps or 200, progress=meter,
-                         report=_report(args, quiet))
+    return _batch(args, problem, method, np.vstack([u[None], rest]), quiet,
+                  f"{args.starts} starts in one batch: the previous fit and "
+                  f"{args.starts - 1} random")
 
 
 def refine_from(args, problem, params, what: str = "from the previous fit",
