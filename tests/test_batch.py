@@ -66,6 +66,7 @@ def test_a_serial_batch_records_a_failure_and_a_second_run_skips_what_is_done(tm
     assert _table(tmp_path / "s" / "results.csv") == s
 
 
+@pytest.mark.extended  # (a local cluster's workers start)
 def test_a_local_cluster_gives_the_serial_table(tmp_path):
     """Two worker processes (each compiles its own programs: one loop, kept small) and the
     failing item: the same rows as the serial run, to round-off."""

@@ -106,6 +106,7 @@ def test_simulate_csv_identify_json_recovers_the_parameters():
         assert os.path.getsize(os.path.join(d, fig)) > 10_000
 
 
+@pytest.mark.extended  # (a command-line chain, a background subprocess)
 def test_identify_killed_midway_resumes_from_its_checkpoint():
     d, status = _finished("resume")
     assert status["killed"], "the run finished before its first checkpoint"
@@ -136,6 +137,7 @@ def test_reproduce_table1_quick_runs():
     print(f"reproduce table1 --quick: {status['table1_seconds']:.0f} s")
 
 
+@pytest.mark.extended  # (a command-line chain, a background subprocess)
 def test_reproduce_interrupted_leaves_partial_files():
     d, status = _finished("reproduce")
     # interrupted after its first run: exit 130, and every file says it is partial
@@ -147,6 +149,7 @@ def test_reproduce_interrupted_leaves_partial_files():
     assert md.startswith("**PARTIAL: interrupted**")
 
 
+@pytest.mark.extended  # (a command-line chain, a background subprocess)
 def test_sharded_population_matches_unsharded():
     d, status = _finished("sharding")
     assert status["sharding"] == 0, _log(d, "sharding.log")
@@ -220,6 +223,7 @@ def test_reproduce_table3_and_table2_quick():
           f"{status['table3_seconds'] + status['table2_seconds']:.0f} s")
 
 
+@pytest.mark.extended  # (a command-line chain, a background subprocess)
 def test_measured_loop_default_command_bounds_stops_and_start():
     """Issue 15 through the command: a digitized-like B–H loop (mT, no t) with every
     default; a parameter on its bound exits 4 and says so; a fit stopped at its step
@@ -253,6 +257,7 @@ def test_measured_loop_default_command_bounds_stops_and_start():
     assert status["report"] == 0, _log(d, "report.log")
 
 
+@pytest.mark.extended  # (a command-line chain, a background subprocess)
 def test_compensate_writes_its_files_learns_from_a_plant_and_reports_the_unreachable():
     d, status = _finished("compensate")
     assert status["first"] == 0, _log(d, "first.log")

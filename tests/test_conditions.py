@@ -165,6 +165,7 @@ def _write_conditions_file(path):
     path.write_text("\n".join(rows) + "\n")
 
 
+@pytest.mark.extended  # (a leave-one-out through the command line)
 def test_predict_reproduces_the_fit_and_leave_one_out_reports_each_loop(tmp_path, capsys):
     data = tmp_path / "loops.csv"
     _write_conditions_file(data)

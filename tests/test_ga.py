@@ -107,6 +107,7 @@ def gatr1_run(problem):
     return jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL)
 
 
+@pytest.mark.extended  # (GATR1 in full; every hybrid runs short below)
 def test_short_gatr1_improves_by_orders_of_magnitude(gatr1_run):
     history = gatr1_run.extra["history"]
     initial = history[0]["best_cost"]  # best of the initial (random) population
@@ -148,6 +149,7 @@ def test_a_solver_object_plugs_into_the_ga(problem):
     assert res.extra["after"] is not None and res.solver == "GA+dogleg"
 
 
+@pytest.mark.extended  # (GATR1 in full twice)
 def test_same_seed_same_result_and_different_seeds_differ(problem, gatr1_run):
     again = jh.run_hybrid(problem, "GATR1", seed=3, settings=SMALL, report=False)
     np.testing.assert_array_equal(again.params.to_array(), gatr1_run.params.to_array())
@@ -157,6 +159,7 @@ def test_same_seed_same_result_and_different_seeds_differ(problem, gatr1_run):
     assert not np.array_equal(other.params.to_array(), same_seed_plain.params.to_array())
 
 
+@pytest.mark.extended  # (GATR1 in full; also in the compat step)
 @pytest.mark.compat
 def test_checkpoint_resume_gives_the_uninterrupted_result(problem, gatr1_run, tmp_path):
     path = tmp_path / "run.npz"
@@ -308,6 +311,7 @@ def test_failed_individuals_get_zero_fitness_and_are_counted(problem):
     assert res.result == "max_steps_reached"  # no convergence check: never "successful"
 
 
+@pytest.mark.extended  # (GATR1 in full)
 def test_ctrl_c_stops_at_the_generation_keeps_best_and_resumes_exactly(
         problem, gatr1_run, tmp_path, monkeypatch):
     """Ctrl-C in Python (no handler installed by jaxhyst) ends the run at the last

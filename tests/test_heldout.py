@@ -39,6 +39,7 @@ COMMON = ["--joint", "--leave-one-out", "--method", "lm", "--cells", "8", "--pro
           "--intervals", "linear"]  # (the intervals are not what these tests check)
 
 
+@pytest.mark.extended  # (two forms' leave-one-out in full)
 def test_forms_are_compared_and_the_best_predictor_is_kept(tmp_path, capsys):
     data = tmp_path / "loops.csv"
     _write(data)
@@ -132,6 +133,7 @@ def test_the_summary_says_when_the_nearest_loops_fit_predicts_better():
     assert "BASELINE BETTER" not in held_out_text(held)
 
 
+@pytest.mark.extended  # (a rate-dependent leave-one-out)
 def test_a_candidate_carries_its_own_loss_terms_into_the_folds_and_the_final_fit(
         tmp_path, capsys):
     """``--variant classic+relax``: every fold and the final fit are the rate-dependent

@@ -72,6 +72,7 @@ def test_no_null_direction_once_the_right_parameters_are_fixed():
     assert rep.condition_number < 1e4
 
 
+@pytest.mark.extended  # (a second identifiability study)
 def test_quasi_static_drive_leaves_mass_and_damping_practically_unidentifiable():
     drive = jh.sinusoidal_current(2.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=100)
     p = jh.TABLE1_TRUE

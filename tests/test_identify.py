@@ -64,7 +64,10 @@ def test_name_tables_agree():
         assert isinstance(getattr(jh, cls)(), FORM_TYPES)
 
 
-@pytest.mark.parametrize("solver", names.SOLVER_NAMES)
+@pytest.mark.parametrize("solver", [  # (the solvers beyond the paper's LM and trust region:
+    # the extended step)
+    pytest.param(s, marks=pytest.mark.extended) if s in ("indirect_lm", "bfgs") else s
+    for s in names.SOLVER_NAMES])
 def test_solver_outcome_on_table1(problem, solver):
     res = jh.solve(problem, _start(problem), solver=solver,
                    max_steps=MAX_STEPS.get(solver, 200), report=False)

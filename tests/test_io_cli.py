@@ -268,6 +268,7 @@ def test_joint_bh_problem_from_a_multi_loop_file(tmp_path):
         build_problem({**spec, "joint": False})
 
 
+@pytest.mark.extended  # (exit 3 of a fold: test_heldout)
 def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
     """A fit cut off at its step limit is not a success: the result says
     ``max_steps_reached`` and the command exits 3 (documented in ``--help``)."""

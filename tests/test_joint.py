@@ -39,6 +39,7 @@ def _bounds(truth):
     return jh.Bounds(jh.Parameters.from_array(lo), jh.Parameters.from_array(hi))
 
 
+@pytest.mark.extended  # (a joint fit to the truth; joint fits run short in the default run)
 def test_joint_multi_frequency_fit_recovers_shared_and_per_loop_parameters():
     truth = _truth()
     act = jh.ACTUATOR2

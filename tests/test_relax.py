@@ -166,6 +166,7 @@ def test_the_b_driven_after_effect_agrees_with_its_ode_and_inverts_the_h_driven_
     assert np.max(np.abs(np.asarray(back.H)[o] - H[o])) <= 1e-10 * np.ptp(H)
 
 
+@pytest.mark.extended  # (the B-driven after-effect's agreement stays in the default run)
 def test_the_b_driven_after_effect_is_chosen_statically_and_differentiated():
     """Traced, the path is a static choice: ``after_effect=True`` gives the eager values
     (and derivatives that match central differences), left out it gives NaN for relax > 0

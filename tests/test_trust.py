@@ -34,6 +34,7 @@ def noisy():
     return eqx.tree_at(lambda q: q.data, problem, jnp.asarray(data)), sd
 
 
+@pytest.mark.extended  # (three fits with profile checks)
 def test_a_declared_sigma_that_disagrees_with_the_residuals_is_not_taken_literally(noisy):
     """A prior needs every group's σ; one declared 1000× too large (to allow the prior)
     used to give c = 0.18 ± 1e2. The report whitens by the residuals instead and says so;
@@ -71,6 +72,7 @@ def test_a_problem_without_the_protocol_is_refused_before_any_work():
         jh.run_hybrid(Duck())
 
 
+@pytest.mark.extended  # (a solver beyond the paper's)
 def test_nelder_mead_runs_as_a_local_solver(noisy):
     problem, _ = noisy
     result = jh.solve(problem, np.full(problem.space.n_free, 0.5),
@@ -150,6 +152,7 @@ def test_a_derived_box_that_binds_is_widened_and_the_fit_redone(tmp_path, capsys
     assert status == 0 and not res.get("at_bound"), err
 
 
+@pytest.mark.extended  # (two profile checks)
 def test_a_box_that_leaves_fewer_ends_to_profile_compiles_no_new_re_fit(noisy):
     """The profile's re-fits are one batch of two ends per parameter whatever the data
     leave to profile: a box whose upper bound of ``a`` lies inside a's linear interval
