@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 
 import jax
 import numpy as np
@@ -22,11 +23,14 @@ class _Compiles(logging.Handler):
     def __init__(self):
         super().__init__(logging.DEBUG)
         self.names: list[str] = []
+        self.threads: dict[str, set] = {}  # program → the threads that compiled it
 
     def emit(self, record):
         message = record.getMessage()
         if message.startswith("Compiling"):
             self.names.append(message[:100])
+            program = message.split()[1]
+            self.threads.setdefault(program, set()).add(threading.current_thread().name)
 
 
 @contextlib.contextmanager
@@ -39,16 +43,16 @@ def counting():
     log.setLevel(logging.DEBUG)
     try:
         with jax.log_compiles():
-            yield handler.names
+            yield handler
     finally:
         log.removeHandler(handler)
         log.setLevel(level)
 
 
 def test_the_counter_counts():
-    with counting() as names:
+    with counting() as compiled:
         jax.jit(lambda x: x * 3.0 + 1.0)(np.arange(3.0))
-    assert len(names) == 1
+    assert len(compiled.names) == 1
 
 
 MODEL = jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1)
@@ -58,10 +62,10 @@ def test_compensate_compiles_nothing_for_a_new_limit_frequency_or_tolerance():
     ref = sinusoidal_reference(100.0, 20e-6, 45e-6, samples_per_period=100)
     jh.compensate(MODEL, ref, current_limit=2.5, max_steps=3)
     other = sinusoidal_reference(140.0, 15e-6, 40e-6, samples_per_period=100)
-    with counting() as names:
+    with counting() as compiled:
         jh.compensate(MODEL, ref, current_limit=2.2, max_steps=3)
         jh.compensate(MODEL, other, current_limit=(-0.5, 2.6), max_steps=3, tolerance=1e-4)
-    assert names == []
+    assert compiled.names == []
 
 
 def test_simulate_and_simulate_flux_compile_nothing_for_a_new_frequency_or_loss_value():
@@ -71,14 +75,14 @@ def test_simulate_and_simulate_flux_compile_nothing_for_a_new_frequency_or_loss_
     jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive, losses=losses)
     jh.simulate_flux(jh.TABLE1_TRUE, flux, losses=losses)
     jh.simulate_flux(jh.TABLE1_TRUE, flux, losses=jh.Losses(relax=1e-4))  # (its own path)
-    with counting() as names:
+    with counting() as compiled:
         drive2 = jh.sinusoidal_current(250.0, 0.5, 1.2, jh.ACTUATOR1, samples_per_period=64)
         jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive2,
                     losses=jh.Losses(0.02, 0.9, 1e-5, relax=2e-4))
         flux2 = jh.sinusoidal_flux(400.0, 0.25, samples_per_period=64)
         jh.simulate_flux(jh.TABLE1_TRUE, flux2, losses=jh.Losses(0.1, 0.2, 2e-5))
         jh.simulate_flux(jh.TABLE1_TRUE, flux2, losses=jh.Losses(0.1, relax=3e-4))
-    assert names == []
+    assert compiled.names == []
 
 
 SOFT = jh.Parameters(Ms=3.5e5, lambda_s=0.0, a=30.0, k=20.0, alpha=1e-5, c=0.3, E=1.0,
@@ -111,10 +115,10 @@ def test_a_joint_fit_compiles_nothing_for_new_data_a_new_frequency_box_or_noise_
     box = jh.Bounds(SOFT.replace(a=10.0, k=5.0, c=0.05), SOFT.replace(a=100.0, k=60.0, c=0.9))
     _fit(300.0, 200.0, box, {"eddy": (0.0, 0.2), "excess": (0.0, 2.0)}, sigma=1e-3)
     wider = jh.Bounds(SOFT.replace(a=5.0, k=2.0, c=0.0), SOFT.replace(a=150.0, k=90.0, c=1.0))
-    with counting() as names:
+    with counting() as compiled:
         _fit(500.0, 150.0, wider, {"eddy": (0.0, 0.4), "excess": (0.0, 1.0)},
              sigma=[2e-3, 3e-3, 2e-3])
-    assert names == []
+    assert compiled.names == []
 
 
 @pytest.mark.filterwarnings("ignore::jaxhyst.identify.SamplingWarning")
@@ -153,9 +157,9 @@ def test_loops_of_other_lengths_padded_alike_share_a_program_and_cost_what_they_
     a, b = joint(first, pad_to), joint(second, pad_to)
     z = np.full(a.space.n_free, 0.3)
     value = float(cost(a, z))
-    with counting() as names:
+    with counting() as compiled:
         cost(b, z)
-    assert names == []
+    assert compiled.names == []
     # the padding changes no number: against each loop as a single-loop problem
     singles = [jh.Problem(y, d, NO_ACTUATOR, jh.ParameterSpace(box, fixed), substeps=2,
                           output="flux_density", variant=jh.ClassicJA()) for d, y in first]
@@ -165,3 +169,27 @@ def test_loops_of_other_lengths_padded_alike_share_a_program_and_cost_what_they_
     assert [int(g.count) for g in a.groups] == [d.n_observed for d, _ in first]
     with pytest.raises(ValueError, match=r"pad_to=\(12, -3\): give \(run-in, observed"):
         joint(first, (12, -3))
+
+
+def test_a_fits_report_compiles_in_a_thread_of_its_own_while_the_fit_runs():
+    """`jaxhyst.solve` & co. compile the report's programs (its Jacobian, the profile
+    check's re-fits) in a background thread while the fit compiles and runs: they are
+    compiled there, counted by ``jax.log_compiles`` like the caller's, not compiled again
+    for the report, no thread is left behind, and the report is the one made afterwards
+    in the caller's thread."""
+    from jaxhyst.identify.joint import NO_ACTUATOR
+
+    d = jh.sinusoidal_field(1.0, 90.0, 0.0, samples_per_period=38)  # (a shape of its own)
+    sim = jh.simulate(SOFT, NO_ACTUATOR, d, jh.ClassicJA(), substeps=2)
+    box = jh.Bounds(SOFT.replace(a=10.0, k=5.0, c=0.05), SOFT.replace(a=100.0, k=60.0, c=0.9))
+    problem = jh.Problem(np.asarray(d.observed(MU0 * (sim.H + sim.M))), d, NO_ACTUATOR,
+                         jh.ParameterSpace(box, FIXED), output="flux_density",
+                         variant=jh.ClassicJA(), substeps=2)
+    start = SOFT.replace(a=40.0, k=15.0, c=0.4)
+    with counting() as compiled:
+        res = jh.solve(problem, start, max_steps=30, report="profile")
+    for program in ("jit(whitened_log_jacobian)", "jit(_held_costs)"):
+        assert compiled.threads.get(program) == {"jaxhyst-compile-report"}, compiled.threads
+    assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-report"]
+    again = jh.fit.attach_report(res, problem, "profile").report
+    assert again.intervals == res.report.intervals and again.names == res.report.names

@@ -104,6 +104,16 @@ def whitened_log_jacobian(problem, x0, scale):
 _log_jacobian = eqx.filter_jit(whitened_log_jacobian)
 
 
+def compile_report(problem) -> None:
+    """Compile the report's whitened Jacobian for ``problem`` (its program depends on the
+    problem's structure and shapes only) by evaluating it once at the box's centre —
+    for a background thread while the fit runs (`jaxhyst.fit`)."""
+    space = problem.space
+    x0 = np.asarray(space.free_values(space.params_from_u(np.full(space.n_free, 0.5))),
+                    dtype=float)
+    _log_jacobian(problem, jnp.asarray(x0), jnp.asarray(np.ones_like(x0)))
+
+
 def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float = 0.5,
                     profile: bool = True) -> IdentifiabilityReport:
     """Identifiability report of ``problem``'s free parameters at ``params`` (see the module
