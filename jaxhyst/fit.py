@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import threading
 
 from . import identify
+from ._background import meanwhile
 from .analysis.identifiability import compile_report, identifiability
 from .analysis.profile_intervals import compile_refits
 from .identify.result import stopped_short
@@ -78,71 +78,36 @@ def _continued(result, problem, rep):
     return merged, identifiability(problem, merged.params, profile=True)
 
 
-#: Threads (ident → event) whose next large program's compilation a report thread waits
-#: for: set when the thread has lowered a program for ≥ `_LARGE_LOWERING` s (a fit's step),
-#: so that the report's tracing (which holds the GIL) does not slow the fit's own.
-_WAITING: dict[int, set] = {}
-_LARGE_LOWERING = 0.1
-_listening = False
-
-
-def _on_lowered(event, duration, **_):
-    if event == "/jax/core/compile/jaxpr_to_mlir_module_duration" and \
-            duration >= _LARGE_LOWERING:
-        for ready in tuple(_WAITING.get(threading.get_ident(), ())):
-            ready.set()
-
-
 def _compile_report_meanwhile(problem, report):
     """Compile the programs the report will run (the model's error at the data's
-    sampling, the whitened Jacobian: they depend on the problem's shapes, not on the fit)
-    in a background thread, so that on a multi-core CPU they compile while the fit's own
-    programs compile and run instead of after them. Values are untouched: the thread
-    only fills the compiled-program caches (at the box's centre), and the caller joins it
-    before the report. A failure there is left to the report itself to meet and say."""
-    import jax
+    sampling, the whitened Jacobian, the profile check's re-fits: they depend on the
+    problem's shapes, not on the fit) in a background thread (`jaxhyst._background`), at
+    the box's centre, so that they compile while the fit's own programs compile and run
+    instead of after them."""
     import numpy as np
 
-    if not report or jax.config.jax_disable_jit:
-        return None, None
-    global _listening
-    log = jax.config.jax_log_compiles  # (the caller's, e.g. inside jax.log_compiles())
-    if not _listening:
-        jax.monitoring.register_event_duration_secs_listener(_on_lowered)
-        _listening = True
-    caller, ready = threading.get_ident(), threading.Event()
-    _WAITING.setdefault(caller, set()).add(ready)
+    if not report:
+        return None
 
     def work():
-        # after the fit has traced and lowered its step (or 20 s): then its XLA compile,
-        # which releases the GIL, and this thread's tracing overlap
-        ready.wait(20.0)
-        _WAITING.get(caller, set()).discard(ready)
-        try:
-            with jax.log_compiles(log):
-                space = problem.space
-                sampling_error(problem, space.params_from_u(np.full(space.n_free, 0.5)))
-                compile_report(problem)
-                if report == "profile":
-                    compile_refits(problem)
-        except Exception:  # noqa: BLE001  (the report, in the caller's thread, says it)
-            pass
+        space = problem.space
+        sampling_error(problem, space.params_from_u(np.full(space.n_free, 0.5)))
+        compile_report(problem)
+        if report == "profile":
+            compile_refits(problem)
 
-    thread = threading.Thread(target=work, name="jaxhyst-compile-report", daemon=True)
-    thread.start()
-    return thread, ready
+    return meanwhile(work)
 
 
 def _with_report(fn):
     @functools.wraps(fn)
     def wrapped(problem, *args, report: bool = True, **kwargs):
-        thread, ready = _compile_report_meanwhile(problem, report)
+        background = _compile_report_meanwhile(problem, report)
         try:
             result = fn(problem, *args, **kwargs)
         finally:
-            if thread is not None:
-                ready.set()  # (a fit that compiled nothing large: go now)
-                thread.join()
+            if background is not None:
+                background.join()
         return attach_report(result, problem, report)
 
     wrapped.__doc__ = (fn.__doc__ or "") + (

@@ -1,0 +1,77 @@
+"""Programs compiled in a background thread while the caller's own compile and run.
+
+A first fit compiles several programs one after another: its step, then its report's.
+Programs whose shapes are known before they are needed (the report's: `jaxhyst.fit`) can
+be compiled meanwhile in another thread: `meanwhile` runs a function that calls them once
+on inputs of the right shapes, so that the compiled-program caches hold them when the
+caller gets there. Values are never shared: the thread's results are dropped, and its
+exceptions too (the caller meets the same error, where it can say it).
+
+The thread starts its work once the calling thread has lowered a large program (its
+tracing, which holds the GIL, is then done; XLA's compile releases it), and runs under
+the caller's ``jax.log_compiles`` setting, so that compile counters see its programs.
+The caller joins it (`Meanwhile.join`) before it uses what the thread compiles, and on
+every way out. (Tried for `compensate`'s refinement as well: 0.5 s less cold, 0.2 s more
+with the cache filled — its programs trace while the caller traces; not used there.)
+"""
+
+from __future__ import annotations
+
+import threading
+
+#: Threads (ident → events) whose background work waits for their next large lowering.
+_WAITING: dict[int, set] = {}
+#: A lowering that takes this long (s) is a large program's: its compile follows.
+LARGE_LOWERING = 0.1
+_listening = False
+THREAD_NAME = "jaxhyst-compile-meanwhile"
+
+
+def _on_lowered(event, duration, **_):
+    if event == "/jax/core/compile/jaxpr_to_mlir_module_duration" and \
+            duration >= LARGE_LOWERING:
+        for ready in tuple(_WAITING.get(threading.get_ident(), ())):
+            ready.set()
+
+
+class Meanwhile:
+    """A background compilation (`meanwhile`); ``join()`` before using its programs."""
+
+    def __init__(self, work, wait: float):
+        import jax
+
+        global _listening
+        if not _listening:
+            jax.monitoring.register_event_duration_secs_listener(_on_lowered)
+            _listening = True
+        log = jax.config.jax_log_compiles  # (the caller's, e.g. in jax.log_compiles())
+        caller, self.ready = threading.get_ident(), threading.Event()
+        _WAITING.setdefault(caller, set()).add(self.ready)
+
+        def run():
+            self.ready.wait(wait)
+            _WAITING.get(caller, set()).discard(self.ready)
+            try:
+                with jax.log_compiles(log):
+                    work()
+            except Exception:  # noqa: BLE001  (the caller meets it and says it)
+                pass
+
+        self.thread = threading.Thread(target=run, name=THREAD_NAME, daemon=True)
+        self.thread.start()
+
+    def join(self) -> None:
+        """Wait until the work is done (it starts now if it had not)."""
+        self.ready.set()
+        self.thread.join()
+
+
+def meanwhile(work, *, wait: float = 20.0) -> Meanwhile | None:
+    """Run ``work()`` (calls of compiled programs on inputs of the right shapes) in a
+    background thread once the caller has lowered a large program, or after ``wait``
+    seconds; None (nothing started) where JIT is disabled."""
+    import jax
+
+    if jax.config.jax_disable_jit:
+        return None
+    return Meanwhile(work, wait)
