@@ -171,10 +171,10 @@ def test_a_box_that_leaves_fewer_ends_to_profile_compiles_no_new_re_fit(noisy):
     upper = np.asarray(space.upper, float).copy()
     upper[i] = a + 0.3 * (hi - a)
     boxed = eqx.tree_at(lambda q: q.space, problem, space.with_box(space.lower, upper))
-    with counting() as names:
+    with counting() as compiled:
         second = identifiability(boxed, fit.params)
     assert second.intervals["a"][1] <= upper[i] * (1 + 1e-12)
-    assert not [n for n in names if "_held_costs" in n], names
+    assert not [n for n in compiled.names if "_held_costs" in n], compiled.names
 
 
 def test_the_profile_check_fires_on_a_curved_case_and_not_on_a_straight_one(noisy,

@@ -79,20 +79,6 @@ def _held_costs(problem, solver, lowers, uppers, z0s, max_steps):
     return jax.vmap(one)(lowers, uppers, z0s)
 
 
-def compile_refits(problem, solver: str = "lm", max_steps: int = STEPS) -> None:
-    """Compile the profile check's programs for ``problem`` (the batch of re-fits, two
-    ends per free parameter, and the cost at a point) by running them once on a box
-    shrunk to its centre, where every re-fit ends at once — for a background thread
-    while the fit runs (`jaxhyst.fit`)."""
-    space = problem.space
-    centre = np.asarray(space.free_values(space.params_from_u(np.full(space.n_free, 0.5))),
-                        dtype=float)
-    held = jnp.asarray(np.tile(centre, (2 * space.n_free, 1)))
-    _held_costs(problem, make_solver(solver, *RE_FIT_TOLERANCES), held, held,
-                jnp.zeros(held.shape), max_steps)
-    cost_at(problem, jnp.zeros(space.n_free))
-
-
 def _noise_variance(problem, cost: float, inflation: float) -> float:
     """σ² in cost units: 1 where every group declares its noise (a χ²), else the cost per
     degree of freedom; times the inflation for correlated residuals."""
