@@ -11,8 +11,9 @@ The thread starts its work once the calling thread has lowered a large program (
 tracing, which holds the GIL, is then done; XLA's compile releases it), and runs under
 the caller's ``jax.log_compiles`` setting, so that compile counters see its programs.
 The caller joins it (`Meanwhile.join`) before it uses what the thread compiles, and on
-every way out. (Tried for `compensate`'s refinement as well: 0.5 s less cold, 0.2 s more
-with the cache filled — its programs trace while the caller traces; not used there.)
+every way out. Where the caller traces while the thread traces (both hold the GIL) or two
+compiles share two cores, each slows the other: the gain is measured per use
+(`benchmarks/RESULTS.md`, issue 45).
 """
 
 from __future__ import annotations

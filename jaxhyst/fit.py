@@ -92,8 +92,7 @@ def _compile_report_meanwhile(problem, report):
         sampling_error(problem, space.params_from_u(np.full(space.n_free, 0.5)))
         compile_report(problem)
         # (not the profile check's re-fits: they run only where the fit is not exact,
-        # which is not known before it ends — compiled for an exact fit, they cost 14.5 →
-        # 19.8 s on a B-driven fit of noise-free data)
+        # which is not known before it ends; compiled for nothing, they slow the fit)
 
     return meanwhile(work)
 
