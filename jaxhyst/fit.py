@@ -77,20 +77,45 @@ def _continued(result, problem, rep):
     return merged, identifiability(problem, merged.params, profile=True)
 
 
+#: Problem structures (`_structure`) whose report programs this process has compiled.
+_COMPILED: set = set()
+
+
+def _structure(problem):
+    """What the report's compiled programs depend on: the problem's tree structure, its
+    arrays' shapes and dtypes, its other leaves; None where that is not hashable."""
+    import jax
+
+    leaves, treedef = jax.tree_util.tree_flatten(problem)
+    key = (treedef, tuple((tuple(x.shape), str(x.dtype)) if hasattr(x, "shape") else x
+                          for x in leaves))
+    try:
+        hash(key)
+    except TypeError:
+        return None
+    return key
+
+
 def _compile_report_meanwhile(problem, report):
     """Compile the programs every report runs (the model's error at the data's sampling,
     the whitened Jacobian: they depend on the problem's shapes, not on the fit) in a
     background thread (`jaxhyst._background`), at the box's centre, so that they compile
-    while the fit's own programs compile and run instead of after them."""
+    while the fit's own programs compile and run instead of after them — once per problem
+    structure in a process (they are evaluated there, which a second fit need not pay)."""
     import numpy as np
 
     if not report:
+        return None
+    key = _structure(problem)
+    if key is not None and key in _COMPILED:  # (compiled already: nothing to gain)
         return None
 
     def work():
         space = problem.space
         sampling_error(problem, space.params_from_u(np.full(space.n_free, 0.5)))
         compile_report(problem)
+        if key is not None:
+            _COMPILED.add(key)
         # (not the profile check's re-fits: they run only where the fit is not exact,
         # which is not known before it ends; compiled for nothing, they slow the fit)
 

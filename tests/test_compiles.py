@@ -175,7 +175,8 @@ def test_a_fits_report_compiles_in_a_thread_of_its_own_while_the_fit_runs():
     """`jaxhyst.solve` & co. compile the report's programs (its Jacobian) in a background
     thread while the fit compiles and runs: they are compiled there, counted by
     ``jax.log_compiles`` like the caller's, not compiled again for the report, no thread
-    is left behind, and the report is the one made afterwards in the caller's thread."""
+    is left behind, the report is the one made afterwards in the caller's thread, and a
+    second fit of the same structure starts none."""
     from jaxhyst.identify.joint import NO_ACTUATOR
 
     d = jh.sinusoidal_field(1.0, 90.0, 0.0, samples_per_period=38)  # (a shape of its own)
@@ -192,3 +193,5 @@ def test_a_fits_report_compiles_in_a_thread_of_its_own_while_the_fit_runs():
     assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-meanwhile"]
     again = jh.fit.attach_report(res, problem, "profile").report
     assert again.intervals == res.report.intervals and again.names == res.report.names
+    # once per problem structure: a second fit of these data starts no thread
+    assert jh.fit._compile_report_meanwhile(problem, True) is None
