@@ -135,7 +135,9 @@ def _with_report(fn):
 
     wrapped.__doc__ = (fn.__doc__ or "") + (
         "\n\n    ``report`` (keyword, default True): attach the identifiability report "
-        "(``\"profile\"``: with intervals checked along the profile likelihood).")
+        "(``\"profile\"``: with intervals checked along the profile likelihood). The "
+        "report's programs compile in a background thread while the fit runs (the first "
+        "time for a problem's structure; joined before this returns).")
     return wrapped
 
 
