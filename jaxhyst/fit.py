@@ -111,9 +111,9 @@ def _compile_report_meanwhile(problem, report):
         return None
 
     def work():
-        space = problem.space
-        sampling_error(problem, space.params_from_u(np.full(space.n_free, 0.5)))
-        compile_report(problem)
+        centre = problem.space.params_from_u(np.full(problem.space.n_free, 0.5))
+        sampling_error(problem, centre)
+        compile_report(problem, centre)
         if key is not None:
             _COMPILED.add(key)
         # (not the profile check's re-fits: they run only where the fit is not exact,

@@ -104,13 +104,11 @@ def whitened_log_jacobian(problem, x0, scale):
 _log_jacobian = eqx.filter_jit(whitened_log_jacobian)
 
 
-def compile_report(problem) -> None:
+def compile_report(problem, params) -> None:
     """Compile the report's whitened Jacobian for ``problem`` (its program depends on the
-    problem's structure and shapes only) by evaluating it once at the box's centre —
-    for a background thread while the fit runs (`jaxhyst.fit`)."""
-    space = problem.space
-    x0 = np.asarray(space.free_values(space.params_from_u(np.full(space.n_free, 0.5))),
-                    dtype=float)
+    problem's structure and shapes only) by evaluating it once at ``params`` — for a
+    background thread while the fit runs (`jaxhyst.fit`)."""
+    x0 = np.asarray(problem.space.free_values(params), dtype=float)
     _log_jacobian(problem, jnp.asarray(x0), jnp.asarray(np.ones_like(x0)))
 
 
