@@ -3,11 +3,12 @@ by the profile itself.
 
 The linear (Wald or bound-aware) interval of a parameter assumes that the cost rises
 quadratically along its profile. `refine_intervals` tests that at each end of the linear
-interval: it re-fits every other parameter with this one held at the end (all ends of all
-parameters in one vmapped batch of local solves, each warm-started on the linearised
-profile path) and reads the profile's Δχ² there. Where it lies within `TOLERANCE` of the
-threshold c (3.84, or the bound-aware one), the linear end stands — the quadratic
-describes the profile. Elsewhere the end is moved to where the profile crosses c:
+interval (a quantity of one sign: the same half-width on ln|θ|): it re-fits every other
+parameter with this one held at the end (all ends of all parameters in one vmapped batch
+of local solves, each warm-started on the linearised profile path) and reads the
+profile's Δχ² there. Where it lies within `TOLERANCE` of the threshold c (3.84, or the
+bound-aware one), the linear end stands — the quadratic describes the profile.
+Elsewhere the end is moved to where the profile crosses c:
 successive batches of re-fits, each end's next value from the crossing of √Δχ², which is
 linear in the parameter where the cost is quadratic, bracketed once the crossing is
 passed (false position with the Illinois rule: the end kept twice running has its value

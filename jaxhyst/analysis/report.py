@@ -103,10 +103,11 @@ class IdentifiabilityReport:
 
     def linear_miss(self) -> dict:
         """``{name: p}``: how often the linear 95 % interval of each checked quantity
-        would miss the truth by its own profile likelihood — at each linear end the
-        profile's Δχ² is r times the threshold (`linearity`), the signed root there
-        1.96·√r, and p = Σ_ends (1 − Φ(1.96·√r)) (0.05 where the quadratic holds at
-        both ends; an end the profile does not reach counts 0.5)."""
+        would miss the truth by its own profile likelihood — at each linear end (a
+        quantity of one sign: on ln|θ|, `profile_intervals`) the profile's Δχ² is r
+        times the threshold (`linearity`), the signed root there 1.96·√r, and
+        p = Σ_ends (1 − Φ(1.96·√r)) (0.05 where the quadratic holds at both ends; an
+        end the profile does not reach counts 0.5)."""
         from math import erfc, sqrt
 
         def tail(r):
