@@ -26,6 +26,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .._background import meanwhile
 from ..drive import Drive
 from ..model.accuracy import richardson_error
 from ..progress import progress_meter
@@ -226,8 +227,15 @@ def _check_accuracy(tracking: Tracking, u: np.ndarray, scale: float) -> float:
     step (a reference with kinks, a triangle, does no better), so that one answer
     suffices."""
     model = tracking.model
-    error = richardson_error(evaluate(tracking, u), evaluate(_finer(tracking), u),
-                             size=scale)
+    finer = _finer(tracking)
+    # (the finer model's program compiles in another thread while this one's does)
+    background = meanwhile(lambda: evaluate(finer, u), wait=0.0)
+    try:
+        coarse = evaluate(tracking, u)
+    finally:
+        if background is not None:
+            background.join()
+    error = richardson_error(coarse, evaluate(finer, u), size=scale)
     if not np.isfinite(error) or error <= COARSE:
         return error
     N = tracking.n
