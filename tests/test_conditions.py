@@ -299,7 +299,7 @@ def test_every_coefficient_of_a_law_is_printed_with_its_unit():
 
 
 def test_loops_at_several_frequencies_fitted_rate_independent_get_a_note(tmp_path):
-    from jaxhyst.cli.heldout import rate_note
+    from jaxhyst.cli.candidates import rate_note
     from jaxhyst.io import read_loops
 
     data = tmp_path / "loops.csv"

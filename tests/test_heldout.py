@@ -164,6 +164,27 @@ def test_a_candidate_carries_its_own_loss_terms_into_the_folds_and_the_final_fit
     assert np.all(np.asarray(result["params"]["relax"]["value"]) > 0)
 
 
+@pytest.mark.extended  # (a leave-one-out of a condition model)
+def test_a_candidate_carries_its_own_law_into_the_folds_and_the_final_fit(tmp_path):
+    """``--variant play,play@spread:log_amplitude``: the second candidate's folds and its
+    final fit are condition models with the cells' width a power of the amplitude (the
+    first's are not); whichever is kept, the result says which (a few steps only: the
+    plumbing, not the quality, which benchmarks/RESULTS.md measures)."""
+    data, out = tmp_path / "loops.csv", tmp_path / "r.json"
+    _write(data)
+    main(["identify", str(data), *COMMON, "--variant", "play,play@spread:log_amplitude",
+          "--starts", "2", "--max-steps", "3", "--out", str(out)])
+    result = json.loads(out.read_text())
+    held = result["leave_one_out"]
+    assert list(held["forms"]) == ["play", "play@spread:log_amplitude"]
+    for form, t in held["forms"].items():
+        assert [r["loop"] for r in t["rows"]] == [0, 1, 2] and t["score"] > 0, form
+    lawful = held["kept"] == "play@spread:log_amplitude"
+    assert result["problem"]["variant"] == "play"
+    assert result["problem"]["vary"] == ("spread:log_amplitude" if lawful else None)
+    assert ("spread:log_amplitude" in result.get("coefficients", {})) == lawful
+
+
 def test_a_loops_own_fit_is_never_worse_than_another_loops_fit_inside_its_box(tmp_path):
     """Own fits cut short (two steps): where another loop's fit, inside this loop's box,
     predicts it better than its own fit, the loop is fitted again from it and ends no
@@ -200,8 +221,14 @@ def test_loops_at_several_frequencies_get_rate_dependent_candidates_by_default()
     law in the frequency keeps the static candidates (the user chose the rate model)."""
     from types import SimpleNamespace
 
-    from jaxhyst.cli.heldout import CANDIDATES, RATE_CANDIDATES, candidates
+    from jaxhyst.cli.candidates import (
+        AMPLITUDE_CANDIDATE,
+        CANDIDATES,
+        RATE_CANDIDATES,
+        candidates,
+    )
     from jaxhyst.cli.parser import build_parser
+    from jaxhyst.cli.spec import CLIError
 
     def loops(freqs, timed=True):
         return [SimpleNamespace(conditions={"frequency": f}, t=np.zeros(3) if timed else None)
@@ -220,3 +247,22 @@ def test_loops_at_several_frequencies_get_rate_dependent_candidates_by_default()
     assert chosen(["--losses", "eddy"], loops((50.0, 400.0))) == CANDIDATES
     assert chosen(["--vary", "k:log_f"], loops((50.0, 400.0))) == CANDIDATES
     assert chosen(["--variant", "play"], loops((50.0, 400.0))) == ("play",)
+    # loops of different amplitudes (three or more): the pinning cells' width may follow
+    # the amplitude too, as a candidate of its own
+    def peaks(*amplitudes):
+        return [SimpleNamespace(conditions={}, t=None, H=a * np.sin(np.arange(9.0)))
+                for a in amplitudes]
+
+    assert chosen([], peaks(15.0, 36.0, 107.0)) == (*CANDIDATES, AMPLITUDE_CANDIDATE)
+    assert chosen([], peaks(15.0, 107.0)) == CANDIDATES  # (a fold's law needs two loops)
+    assert chosen([], peaks(100.0, 102.0, 104.0)) == CANDIDATES  # (one amplitude)
+    assert chosen(["--vary", "k:log_amplitude"], peaks(15.0, 36.0, 107.0)) == CANDIDATES
+    # a candidate's own law: one parameter, of its form, not also in --vary
+    assert chosen(["--variant", "classic,play@spread:log_amplitude"], None) == \
+        ("classic", "play@spread:log_amplitude")
+    for bad in ("classic@spread:log_amplitude", "play@", "play@k:log_f,c:log_f",
+                "play@spread:nonsense"):
+        with pytest.raises(CLIError):
+            chosen(["--variant", f"play,{bad}"], None)
+    with pytest.raises(CLIError):
+        chosen(["--variant", "play@k:log_amplitude", "--vary", "k:log_f"], None)

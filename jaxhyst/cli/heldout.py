@@ -16,14 +16,8 @@ from __future__ import annotations
 
 import math
 
-from .spec import CLIError, note
-
-#: The documented candidates compared when no form is named.
-CANDIDATES = ("classic", "energy", "play", "preisach")
-#: … and where the loops span frequencies (`spans_frequencies`, times given, no loss
-#: coefficient or law in the frequency named): two static forms and the two rate
-#: mechanisms on the pinning cells — a static form draws every frequency alike.
-RATE_CANDIDATES = ("play", "classic", "play+relax", "play+eddy+excess")
+from .candidates import candidate_spec
+from .spec import note
 
 
 def _distance(a, b) -> float:
@@ -153,114 +147,6 @@ def _predict(spec, problem, params, loop):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     return {**error_summary(predicted, data), "extrapolated": beyond,
             "_curve": (predicted, data)}
-
-
-def spans_frequencies(loops, factor: float = 1.1) -> tuple[float, float] | None:
-    """(lowest, highest) frequency where every loop carries one and they lie more than
-    ``factor`` apart; else None."""
-    f = [lp.conditions.get("frequency") for lp in loops]
-    if len(loops) < 2 or any(v is None for v in f) or max(f) <= factor * min(f):
-        return None
-    return min(f), max(f)
-
-
-def candidates(args, loops=None) -> list[str]:
-    """The candidates --variant names (a list with --leave-one-out): a form, or a form
-    with loss coefficients of its own, ``play+relax``. None named: the documented ones —
-    `RATE_CANDIDATES` where ``loops`` (given once read) span frequencies, carry times and
-    neither --losses nor a law in the frequency is given; else `CANDIDATES`."""
-    from .options import VARIANTS
-    from .problems import LOSS_NAMES, parse_vary
-
-    if args.variant is None:
-        if not args.leave_one_out:
-            return ["energy"]
-        rated = loops is not None and spans_frequencies(loops) and \
-            all(lp.t is not None for lp in loops) and not args.losses and \
-            not any("log_f" in f for f in parse_vary(args.vary).values())
-        return list(RATE_CANDIDATES if rated else CANDIDATES)
-    forms = [f.strip() for f in args.variant.split(",") if f.strip()]
-    for f in forms:
-        form, *losses = f.split("+")
-        if form not in VARIANTS or any(n not in LOSS_NAMES for n in losses) or \
-                len(set(losses)) != len(losses):
-            raise CLIError(f"--variant {args.variant!r}: the forms are "
-                           f"{', '.join(VARIANTS)}, each optionally with loss coefficients "
-                           f"of its own from {', '.join(LOSS_NAMES)} (e.g. play+relax).")
-    if not forms:
-        raise CLIError(f"--variant {args.variant!r}: the forms are {', '.join(VARIANTS)}.")
-    if len(forms) > 1 and not args.leave_one_out:
-        raise CLIError(f"--variant {args.variant}: several forms are compared only by "
-                       "--leave-one-out (with --joint); name one form to fit.")
-    return forms
-
-
-def loss_names(text) -> list[str]:
-    """--losses 'eddy,excess,relax' → the loss coefficients to identify."""
-    from .problems import LOSS_NAMES
-
-    if not text:
-        return []
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    bad = [n for n in names if n not in LOSS_NAMES]
-    if bad or not names or len(set(names)) != len(names):
-        raise CLIError(f"--losses {text!r}: name the loss coefficients to identify, each "
-                       f"once, from {list(LOSS_NAMES)}.")
-    return names
-
-
-def candidate_spec(args, candidate: str) -> dict:
-    """The spec entries of a candidate of --variant: ``form`` or ``form+loss+…`` → its
-    form and loss coefficients (--losses' and its own)."""
-    form, *own = candidate.split("+")
-    given = loss_names(args.losses)
-    return {"variant": form, "losses": [*given, *(n for n in own if n not in given)]}
-
-
-def rate_note(spec, loops, candidates=()) -> str | None:
-    """Where the loops were measured at frequencies more than 10 % apart and nothing in
-    the model depends on the rate (no loss coefficients, no law in the frequency): what
-    that means and the options that change it; else None."""
-    from .problems import parse_vary
-
-    span = spans_frequencies(loops)
-    if span is None or spec.get("losses") or any("+" in c for c in candidates) or \
-            any("log_f" in feats for feats in parse_vary(spec.get("vary")).values()):
-        return None
-    lo, hi = span
-    return (f"the loops were measured at {lo:.4g}–{hi:.4g} Hz and the model is rate "
-            "independent: it draws every frequency alike. --losses eddy,excess,lag,relax adds "
-            "the rate-dependent model (the file needs times), --variant "
-            "play+eddy+excess,play+relax compares mechanisms; --vary P:log_f a law in the "
-            "frequency")
-
-
-def check_comparison(spec, loops, forms) -> None:
-    """One-line errors before any work: too few loops for the folds, a condition law a
-    compared form cannot carry."""
-    from .problems import parse_vary
-
-    L = len(loops)
-    vary = parse_vary(spec.get("vary"))
-    need = 2 + (int(spec.get("vary_degree", 1)) if vary else 0)
-    if L < need:
-        what = (f"a condition law of degree {spec.get('vary_degree', 1)} needs "
-                f"{need - 1} training loops in every fold" if vary else
-                "every fold needs a loop to fit and one to predict")
-        raise CLIError(f"--leave-one-out: {spec['data']} holds {L} loop"
-                       f"{'s' if L != 1 else ''}; {what}, so give at least {need} loops.")
-    timed = [f for f in forms if "+" in f]
-    untimed = [lp.index for lp in loops if lp.t is None]
-    if timed and untimed:
-        raise CLIError(f"--variant {timed[0]}: loss coefficients need times, and loop "
-                       f"{untimed[0]} of {spec['data']} has no t column; compare forms "
-                       "without them or give times.")
-    own = [n for n in vary if n in ("spread", "a_rev")]
-    plain = [f for f in forms if f.split("+")[0] not in ("play", "preisach")]
-    if own and plain:
-        raise CLIError(f"--vary {own[0]}: only the forms of pinning cells (play, preisach) "
-                       f"have it, and the comparison includes {plain}; name the forms with "
-                       "--variant play,preisach or vary another parameter.")
 
 
 def leave_one_out(args, spec, given, loops, method, forms) -> dict:

@@ -8,21 +8,20 @@ from pathlib import Path
 from jaxhyst._files import writes_in_place
 from jaxhyst.names import DEFAULT_SUBSTEPS, MAGNETIC_OUTPUT_NAMES
 
-from .fitting import decimated_first, fit_by_options, widen_derived_box
-from .flux_fit import check_flux_options, flux_figure
-from .heldout import (
+from .candidates import (
+    AMPLITUDE_CANDIDATE,
     CANDIDATES,
     RATE_CANDIDATES,
     candidate_spec,
     candidates,
     check_comparison,
-    held_out_figure,
-    held_out_text,
-    leave_one_out,
     loss_names,
     rate_note,
     spans_frequencies,
 )
+from .fitting import decimated_first, fit_by_options, widen_derived_box
+from .flux_fit import check_flux_options, flux_figure
+from .heldout import held_out_figure, held_out_text, leave_one_out
 from .models import file_sha256
 from .options import (
     COUNT,
@@ -91,11 +90,13 @@ def add_parser(sub) -> None:
                         "the paper's Jiles–Atherton form, the default; play and preisach: "
                         "forms of pinning cells with return-point memory, their own "
                         "parameter 'spread'); with --leave-one-out a comma-separated list "
-                        "to compare (default there: " + ",".join(CANDIDATES) + "; on loops "
-                        "at several frequencies, with times: " + ",".join(RATE_CANDIDATES)
-                        + "); a form "
-                        "may carry loss coefficients of its own, e.g. play+relax or "
-                        "play+eddy+excess (the mechanisms compared by held-out error)")
+                        "to compare (default there: " + ",".join(CANDIDATES) + ", and "
+                        + AMPLITUDE_CANDIDATE + " on three loops or more of different "
+                        "amplitudes; on loops at several frequencies, with times: "
+                        + ",".join(RATE_CANDIDATES) + "); a form may carry loss "
+                        "coefficients of its own, e.g. play+relax or play+eddy+excess (the "
+                        "mechanisms compared by held-out error), and a condition law of its "
+                        "own after '@', e.g. play@spread:log_amplitude")
     parser.add_argument("--cells", type=POSITIVE_INT, default=DEFAULT_CELLS,
                         help="pinning cells of the forms play and preisach")
     parser.add_argument("--losses", help="loss coefficients to identify with the "
@@ -245,9 +246,9 @@ def run(args) -> int:
                          f"compared are {', '.join(forms)} (two static forms, two rate "
                          "mechanisms; --variant names others). The rate-dependent ones take "
                          "minutes on 2 cores")
-    spec.update(candidate_spec(args, forms[0]))
-    if args.leave_one_out:
+    if args.leave_one_out:  # (before the first candidate's own law joins --vary's)
         check_comparison(spec, loops, forms)
+    spec.update(candidate_spec(args, forms[0]))
     bounds, extra, where = resolve_bounds(spec, given, loops)
     spec["bounds"] = bounds_to_json(bounds)
     spec["extra_bounds"] = {n: list(v) for n, v in extra.items()}
