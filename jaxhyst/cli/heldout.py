@@ -155,14 +155,17 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
     from jaxhyst._interrupt import stop_requested
 
     conditions = _conditions(spec, loops)
-    table, partial, short, curves = {}, False, [], {}
+    table, partial, short, curves, singles = {}, False, [], {}, {}
     pad_to = comparison_shape(spec, loops)
     for form in forms:
         spec_f = {**spec, **candidate_spec(args, form), "pad_to": pad_to}
         # (a fold's parameters of the same kind as a single loop's: shared, no law)
         shared = not (spec_f.get("vary") or spec_f.get("per_loop"))
-        own = []
-        for lp in loops:
+        # (a candidate that differs from an earlier one only by its law has its loops
+        # alone fitted already: the same single-loop problems)
+        alone, own = singles.get(form.partition("@")[0], ([], []))
+        own, reused = list(own), len(own)
+        for lp in loops[len(own):]:
             if stop_requested():
                 partial = True
                 break
@@ -174,7 +177,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             own.append((result, problem, fitted))
         # (each loop's fit from its own data alone: the folds' starts, which must not
         # see the loop a fold holds out — a re-fit from a neighbour's fit would)
-        alone = [r for r, _, _ in own]
+        alone = alone or [r for r, _, _ in own]
         if not partial and not stop_requested():
             own = _own_best(args, own, loops, method)
         rows = []
@@ -219,7 +222,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                  f"{row['rms']:.4g} ({row['outcome']})")
             rows.append(row)
         short += [f"{form}, loop {lp.index} alone: {r.result}" for (r, _, _), lp in
-                  zip(own, loops, strict=False) if not r.success]
+                  zip(own[reused:], loops[reused:], strict=False) if not r.success]
         done = len(rows) == len(loops)
         score = math.exp(sum(math.log(r["rms"] / r["data_scale"]) for r in rows) /
                          len(rows)) if done else None
@@ -228,6 +231,8 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                       if done and len(near) == len(rows) else None)
         table[form] = {"rows": rows, "score": score, "complete": done,
                        "nearest_score": near_score}
+        if done:
+            singles.setdefault(form.partition("@")[0], (alone, list(own)))
         if partial:
             break
     scored = {f: t["score"] for f, t in table.items() if t["score"] is not None}
