@@ -218,7 +218,9 @@ def test_a_loops_own_fit_is_never_worse_than_another_loops_fit_inside_its_box(tm
 def test_loops_at_several_frequencies_get_rate_dependent_candidates_by_default():
     """No form named: the static candidates, unless the loops span frequencies with times
     (then two static forms beside the two rate mechanisms); a named loss coefficient or a
-    law in the frequency keeps the static candidates (the user chose the rate model)."""
+    law in the frequency keeps the static candidates (the user chose the rate model).
+    Three loops or more of different amplitudes add the play form with its cells' width
+    a power of the amplitude; a named candidate's own law is checked before any work."""
     from types import SimpleNamespace
 
     from jaxhyst.cli.candidates import (
@@ -266,3 +268,7 @@ def test_loops_at_several_frequencies_get_rate_dependent_candidates_by_default()
             chosen(["--variant", f"play,{bad}"], None)
     with pytest.raises(CLIError):
         chosen(["--variant", "play@k:log_amplitude", "--vary", "k:log_f"], None)
+    args = build_parser().parse_args(["identify", "x.csv", "--variant",
+                                      "play@spread:log_amplitude"])
+    with pytest.raises(CLIError, match="needs --joint"):  # (one loop: no law to fit)
+        candidates(args, None)

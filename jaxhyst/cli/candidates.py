@@ -68,6 +68,9 @@ def candidates(args, loops=None) -> list[str]:
                            f"{', '.join(VARIANTS)}, each optionally with loss coefficients "
                            f"of its own from {', '.join(LOSS_NAMES)} (e.g. play+relax) and "
                            "a condition law of its own (e.g. play@spread:log_amplitude).")
+        if law and not getattr(args, "joint", False):
+            raise CLIError(f"--variant {f}: a condition law needs --joint (several loops "
+                           "fitted together).")
         both = set(parse_vary(law)) & set(parse_vary(args.vary))
         if len(parse_vary(law)) > 1 or both or (
                 set(parse_vary(law)) & {"spread", "a_rev"} and form not in ("play", "preisach")):
