@@ -151,11 +151,13 @@ def _predict(spec, problem, params, loop):
 
 def leave_one_out(args, spec, given, loops, method, forms) -> dict:
     """The folds (and own fits) of every form in ``forms``; the kept form's name, every
-    form's rows and score, and whether the run was interrupted or a fit stopped short."""
+    form's rows and score, and whether the run was interrupted or a fit stopped short
+    (``_curves``, ``_folds``: the kept form's predictions and its folds' free values,
+    [(names, values)])."""
     from jaxhyst._interrupt import stop_requested
 
     conditions = _conditions(spec, loops)
-    table, partial, short, curves, singles = {}, False, [], {}, {}
+    table, partial, short, curves, singles, folds = {}, False, [], {}, {}, {}
     pad_to = comparison_shape(spec, loops)
     for form in forms:
         spec_f = {**spec, **candidate_spec(args, form), "pad_to": pad_to}
@@ -194,6 +196,8 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             if result.result == "interrupted":
                 partial = True
                 break
+            folds.setdefault(form, []).append(  # (by name: a fold has fewer loops)
+                (tuple(problem.space.names), problem.space.free_values(result.params)))
             predicted = _predict(fitted, problem, result.params, held)
             curves.setdefault(form, []).append((held, *predicted.pop("_curve")))
             row = {"loop": held.index, **predicted,
@@ -238,7 +242,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
     scored = {f: t["score"] for f, t in table.items() if t["score"] is not None}
     kept = min(scored, key=scored.get) if scored else None
     return {"forms": table, "kept": kept, "partial": partial, "stopped_short": short,
-            "_curves": curves.get(kept, [])}
+            "_curves": curves.get(kept, []), "_folds": folds.get(kept, [])}
 
 
 def held_out_figure(curves, kept: str, spec, actuator, output: str, path: str) -> None:

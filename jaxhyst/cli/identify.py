@@ -263,9 +263,10 @@ def run(args) -> int:
     if rate:
         note("identify", rate)
     held = curves = None
+    folds = ()
     if args.leave_one_out:  # (first: with several forms, it chooses the one to fit)
         held = leave_one_out(args, spec, given, loops, method, forms)
-        curves = held.pop("_curves")
+        curves, folds = held.pop("_curves"), held.pop("_folds")
         if held["partial"]:
             return _interrupted(args, spec, held)
         if held["kept"] != forms[0]:
@@ -277,7 +278,11 @@ def run(args) -> int:
     if where and args.progress:  # (after every check of the input: errors stay one line)
         note("identify", where)
     thinned = decimated_first(args, spec, loops, problem, method)
-    result = thinned or fit_by_options(args, problem, method, start)
+    # (the kept form's folds, each fitted to all loops but one, among the final fit's
+    # starts: a cost with local minima is searched from near its optimum too)
+    seeds = [problem.space.params_from_free(x) for names, x in folds
+             if names == tuple(problem.space.names)]
+    result = thinned or fit_by_options(args, problem, method, start, seeds=seeds)
     if where and where.startswith("bounds derived"):  # (after a thinned fit: its polish's
         result, problem = widen_derived_box(  # single LM solve, not a batch on all samples)
             args, spec, given, loops, problem, result, method, batch=thinned is None)
