@@ -165,15 +165,27 @@ def test_a_candidate_carries_its_own_loss_terms_into_the_folds_and_the_final_fit
 
 
 @pytest.mark.extended  # (a leave-one-out of a condition model)
-def test_a_candidate_carries_its_own_law_into_the_folds_and_the_final_fit(tmp_path):
+def test_a_candidate_carries_its_own_law_into_the_folds_and_the_final_fit(tmp_path,
+                                                                          monkeypatch):
     """``--variant play,play@spread:log_amplitude``: the second candidate's folds and its
     final fit are condition models with the cells' width a power of the amplitude (the
-    first's are not); whichever is kept, the result says which (a few steps only: the
-    plumbing, not the quality, which benchmarks/RESULTS.md measures)."""
+    first's are not); whichever is kept, the result says which, and the kept form's three
+    folds are among the final fit's starts (a few steps only: the plumbing, not the
+    quality, which benchmarks/RESULTS.md measures)."""
+    from jaxhyst.cli import identify
+
     data, out = tmp_path / "loops.csv", tmp_path / "r.json"
     _write(data)
+    final, fit = [], identify.fit_by_options
+
+    def recorded(args, problem, method, start, quiet=False, seeds=()):
+        final.append(list(seeds))
+        return fit(args, problem, method, start, quiet=quiet, seeds=seeds)
+
+    monkeypatch.setattr(identify, "fit_by_options", recorded)
     main(["identify", str(data), *COMMON, "--variant", "play,play@spread:log_amplitude",
-          "--starts", "2", "--max-steps", "3", "--out", str(out)])
+          "--starts", "4", "--max-steps", "3", "--out", str(out)])
+    assert len(final) == 1 and len(final[0]) == 3  # (one per fold of the kept form)
     result = json.loads(out.read_text())
     held = result["leave_one_out"]
     assert list(held["forms"]) == ["play", "play@spread:log_amplitude"]
@@ -233,8 +245,8 @@ def test_loops_at_several_frequencies_get_rate_dependent_candidates_by_default()
     from jaxhyst.cli.spec import CLIError
 
     def loops(freqs, timed=True):
-        return [SimpleNamespace(conditions={"frequency": f}, t=np.zeros(3) if timed else None)
-                for f in freqs]
+        return [SimpleNamespace(conditions={"frequency": f}, t=np.zeros(3) if timed else None,
+                                H=None, I=None) for f in freqs]
 
     def chosen(extra, lps):
         args = build_parser().parse_args(["identify", "x.csv", "--joint", "--leave-one-out",
@@ -252,7 +264,7 @@ def test_loops_at_several_frequencies_get_rate_dependent_candidates_by_default()
     # loops of different amplitudes (three or more): the pinning cells' width may follow
     # the amplitude too, as a candidate of its own
     def peaks(*amplitudes):
-        return [SimpleNamespace(conditions={}, t=None, H=a * np.sin(np.arange(9.0)))
+        return [SimpleNamespace(conditions={}, t=None, H=a * np.sin(np.arange(9.0)), I=None)
                 for a in amplitudes]
 
     assert chosen([], peaks(15.0, 36.0, 107.0)) == (*CANDIDATES, AMPLITUDE_CANDIDATE)

@@ -29,13 +29,19 @@ def spans_frequencies(loops, factor: float = 1.1) -> tuple[float, float] | None:
     return min(f), max(f)
 
 
+def split_candidate(candidate: str) -> tuple[str, list[str], str]:
+    """``form+loss+…@law`` → (form, its own loss coefficients, its law or '')."""
+    body, _, law = candidate.partition("@")
+    form, *losses = body.split("+")
+    return form, losses, law
+
+
 def _spans_amplitudes(loops, factor: float = 1.1) -> bool:
     """Three loops or more whose peak drives (|H| or |I|) lie more than ``factor`` apart."""
     import numpy as np
 
-    drives = [d for d in (getattr(lp, "H", None) if getattr(lp, "H", None) is not None
-                          else getattr(lp, "I", None) for lp in loops) if d is not None]
-    peaks = [float(np.max(np.abs(d))) for d in drives]
+    peaks = [float(np.max(np.abs(lp.H if lp.H is not None else lp.I))) for lp in loops
+             if lp.H is not None or lp.I is not None]
     return len(loops) >= 3 and len(peaks) == len(loops) and max(peaks) > factor * min(peaks)
 
 
@@ -60,20 +66,19 @@ def candidates(args, loops=None) -> list[str]:
                     CANDIDATES + ((AMPLITUDE_CANDIDATE,) if lawful else ()))
     forms = [f.strip() for f in args.variant.split(",") if f.strip()]
     for f in forms:
-        body, at, law = f.partition("@")
-        form, *losses = body.split("+")
+        form, losses, law = split_candidate(f)
         if form not in VARIANTS or any(n not in LOSS_NAMES for n in losses) or \
-                len(set(losses)) != len(losses) or (at and not law.strip()):
+                len(set(losses)) != len(losses) or ("@" in f and not law.strip()):
             raise CLIError(f"--variant {args.variant!r}: the forms are "
                            f"{', '.join(VARIANTS)}, each optionally with loss coefficients "
                            f"of its own from {', '.join(LOSS_NAMES)} (e.g. play+relax) and "
                            "a condition law of its own (e.g. play@spread:log_amplitude).")
-        if law and not getattr(args, "joint", False):
+        if law and not args.joint:
             raise CLIError(f"--variant {f}: a condition law needs --joint (several loops "
                            "fitted together).")
-        both = set(parse_vary(law)) & set(parse_vary(args.vary))
-        if len(parse_vary(law)) > 1 or both or (
-                set(parse_vary(law)) & {"spread", "a_rev"} and form not in ("play", "preisach")):
+        named = set(parse_vary(law))
+        if len(named) > 1 or named & set(parse_vary(args.vary)) or (
+                named & {"spread", "a_rev"} and form not in ("play", "preisach")):
             raise CLIError(f"--variant {f}: a candidate's law names one parameter of its form "
                            f"that --vary does not name (e.g. play@spread:log_amplitude).")
     if not forms:
@@ -102,8 +107,7 @@ def candidate_spec(args, candidate: str) -> dict:
     """The spec entries of a candidate of --variant: ``form``, ``form+loss+…`` and either
     with ``@law`` → its form, loss coefficients (--losses' and its own) and condition
     laws (--vary's and its own)."""
-    body, _, law = candidate.partition("@")
-    form, *own = body.split("+")
+    form, own, law = split_candidate(candidate)
     given = loss_names(args.losses)
     return {"variant": form, "losses": [*given, *(n for n in own if n not in given)],
             "vary": ",".join(v for v in (args.vary, law) if v) or None}
@@ -117,7 +121,7 @@ def rate_note(spec, loops, candidates=()) -> str | None:
 
     span = spans_frequencies(loops)
     if span is None or spec.get("losses") or \
-            any("+" in c.partition("@")[0] for c in candidates) or \
+            any(split_candidate(c)[1] for c in candidates) or \
             any("log_f" in feats for feats in parse_vary(spec.get("vary")).values()):
         return None
     lo, hi = span
@@ -143,14 +147,14 @@ def check_comparison(spec, loops, forms) -> None:
                 "every fold needs a loop to fit and one to predict")
         raise CLIError(f"--leave-one-out: {spec['data']} holds {L} loop"
                        f"{'s' if L != 1 else ''}; {what}, so give at least {need} loops.")
-    timed = [f for f in forms if "+" in f.partition("@")[0]]
+    timed = [f for f in forms if split_candidate(f)[1]]
     untimed = [lp.index for lp in loops if lp.t is None]
     if timed and untimed:
         raise CLIError(f"--variant {timed[0]}: loss coefficients need times, and loop "
                        f"{untimed[0]} of {spec['data']} has no t column; compare forms "
                        "without them or give times.")
     own = [n for n in vary if n in ("spread", "a_rev")]
-    plain = [f for f in forms if f.partition("@")[0].split("+")[0] not in ("play", "preisach")]
+    plain = [f for f in forms if split_candidate(f)[0] not in ("play", "preisach")]
     if own and plain:
         raise CLIError(f"--vary {own[0]}: only the forms of pinning cells (play, preisach) "
                        f"have it, and the comparison includes {plain}; name the forms with "

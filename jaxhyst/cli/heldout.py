@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 
-from .candidates import candidate_spec
+from .candidates import candidate_spec, split_candidate
 from .spec import note
 
 
@@ -165,7 +165,9 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
         shared = not (spec_f.get("vary") or spec_f.get("per_loop"))
         # (a candidate that differs from an earlier one only by its law has its loops
         # alone fitted already: the same single-loop problems)
-        alone, own = singles.get(form.partition("@")[0], ([], []))
+        name, losses, _ = split_candidate(form)
+        same = (name, tuple(losses))  # (the form and its loss coefficients, not its law)
+        alone, own = singles.get(same, ([], []))
         own, reused = list(own), len(own)
         for lp in loops[len(own):]:
             if stop_requested():
@@ -236,7 +238,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
         table[form] = {"rows": rows, "score": score, "complete": done,
                        "nearest_score": near_score}
         if done:
-            singles.setdefault(form.partition("@")[0], (alone, list(own)))
+            singles.setdefault(same, (alone, list(own)))
         if partial:
             break
     scored = {f: t["score"] for f, t in table.items() if t["score"] is not None}
