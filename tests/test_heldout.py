@@ -280,6 +280,13 @@ def test_loops_at_several_frequencies_get_rate_dependent_candidates_by_default()
             chosen(["--variant", f"play,{bad}"], None)
     with pytest.raises(CLIError):
         chosen(["--variant", "play@k:log_amplitude", "--vary", "k:log_f"], None)
+    # each candidate once, one law after '@', each parameter of --vary once
+    with pytest.raises(CLIError, match="named twice"):
+        chosen(["--variant", "play,classic,play"], None)
+    with pytest.raises(CLIError, match="one condition law"):
+        chosen(["--variant", "play@spread:log_amplitude@k:log_amplitude"], None)
+    with pytest.raises(CLIError, match="named twice"):
+        chosen(["--vary", "k:log_f,k:T"], loops((50.0, 400.0)))
     args = build_parser().parse_args(["identify", "x.csv", "--variant",
                                       "play@spread:log_amplitude"])
     with pytest.raises(CLIError, match="needs --joint"):  # (one loop: no law to fit)

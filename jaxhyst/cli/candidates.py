@@ -73,6 +73,10 @@ def candidates(args, loops=None) -> list[str]:
                            f"{', '.join(VARIANTS)}, each optionally with loss coefficients "
                            f"of its own from {', '.join(LOSS_NAMES)} (e.g. play+relax) and "
                            "a condition law of its own (e.g. play@spread:log_amplitude).")
+        if "@" in law:
+            raise CLIError(f"--variant {f}: a candidate carries one condition law after "
+                           "'@' (e.g. play@spread:log_amplitude); compare two laws as two "
+                           "candidates.")
         if law and not args.joint:
             raise CLIError(f"--variant {f}: a condition law needs --joint (several loops "
                            "fitted together).")
@@ -81,6 +85,10 @@ def candidates(args, loops=None) -> list[str]:
                 named & {"spread", "a_rev"} and form not in ("play", "preisach")):
             raise CLIError(f"--variant {f}: a candidate's law names one parameter of its form "
                            f"that --vary does not name (e.g. play@spread:log_amplitude).")
+    twice = sorted({f for f in forms if forms.count(f) > 1})
+    if twice:
+        raise CLIError(f"--variant {args.variant}: {', '.join(twice)} named twice; name "
+                       "each candidate once.")
     if not forms:
         raise CLIError(f"--variant {args.variant!r}: the forms are {', '.join(VARIANTS)}.")
     if len(forms) > 1 and not args.leave_one_out:

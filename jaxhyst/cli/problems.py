@@ -179,6 +179,9 @@ def parse_vary(text) -> dict:
         if not feats or bad:
             raise CLIError(f"--vary {item!r}: give the features after a colon, joined by "
                            f"'+', from {list(CONDITION_FEATURES)} (e.g. 'k:log_f+T').")
+        if name in out:
+            raise CLIError(f"--vary {text!r}: {name!r} is named twice; give each parameter "
+                           "one law (its features joined by '+', e.g. 'k:log_f+T').")
         out[name] = feats
     return out
 
