@@ -256,6 +256,7 @@ def test_predict_reproduces_the_fit_and_leave_one_out_reports_each_loop(tmp_path
     # bad input: one line each
     for argv, msg in (
         (["predict", str(out), "--loop", "7"], "holds loops [0, 1, 2]"),
+        (["predict", str(out), "--amplitude", "1e9"], "--amplitude 1e+09"),
         (["predict", str(out), "--png", str(tmp_path / "p.xyz")], "figures are written as"),
         (["identify", str(data), "--vary", "k:log_f"], "--vary needs --joint"),
         (["identify", str(data), "--joint", "--vary", "k:pressure"], "give the features"),

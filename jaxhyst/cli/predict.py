@@ -58,6 +58,11 @@ def run(args) -> int:
 
         return run_model(args)
     check_outputs(args)
+    from jaxhyst.drive import MAX_FIELD
+
+    if args.amplitude is not None and args.amplitude >= MAX_FIELD:
+        raise CLIError(f"--amplitude {args.amplitude:g}: a peak field of {MAX_FIELD:g} A/m or "
+                       "more is no laboratory field; give the peak field in A/m.")
     saved, spec, fitted, params = load_result(args.result)
     if isinstance(records_of(fitted), jh.FluxProblem):
         raise CLIError(f"{args.result} is a B-driven fit (--driven-by B): predict reads "
