@@ -251,7 +251,10 @@ def load_result(path):
     if not os.path.isabs(spec["data"]):  # stored relative to the result file
         spec["data"] = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(path)),
                                                      spec["data"]))
-    problem = build_problem(spec)
+    try:
+        problem = build_problem(spec)
+    except CLIError as e:  # (an option stored in the file: say which file)
+        raise CLIError(f"{path} (its problem entry): {e}") from None
     if "coefficients" in saved:
         params = {n: np.float64(v) for n, v in saved["coefficients"].items()}
     else:
