@@ -152,6 +152,48 @@ def test_a_derived_box_that_binds_is_widened_and_the_fit_redone(tmp_path, capsys
     assert status == 0 and not res.get("at_bound"), err
 
 
+@pytest.mark.extended  # (a joint CLI fit with a condition law, refitted)
+def test_a_derived_box_that_binds_a_condition_fit_is_widened_too(tmp_path, capsys,
+                                                                  monkeypatch):
+    """The same with three loops of different amplitudes fitted with a condition law
+    (``--vary c:log_amplitude``; a leave-one-out's law candidate fits its folds this
+    way): the law's reference value of k ends on the bound that holds it below a third of
+    its true value, the bound is widened and the fit redone (condition fits were never
+    widened), and k ends at the value the loops were made with."""
+    import json
+
+    from test_measured import FERRITE
+
+    from jaxhyst.identify import measured
+    from jaxhyst.identify.joint import NO_ACTUATOR
+
+    derive = measured.default_loop_bounds
+
+    def tight(features):
+        k = float(FERRITE.k)
+        return measured.merge_bounds(derive(features), {"k": (k / 10, k / 3)})
+
+    monkeypatch.setattr(measured, "default_loop_bounds", tight)
+    rows = []
+    for i, amplitude in enumerate((60.0, 100.0, 160.0)):
+        H = amplitude * np.cos(2 * np.pi * np.arange(201) / 200)
+        drive = jh.drive_from_record(None, H)
+        M = jh.simulate(FERRITE, NO_ACTUATOR, drive, substeps=16).M
+        B = np.asarray(drive.observed(4e-7 * np.pi * (drive.H + M)))
+        rows += [(i, h, b) for h, b in zip(H[:-1], B[:-1], strict=True)]
+    path = tmp_path / "loops.csv"
+    np.savetxt(path, np.array(rows), delimiter=",", header="loop,H [A/m],B [T]",
+               comments="")
+    status = main(["identify", str(path), "--joint", "--vary", "c:log_amplitude",
+                   "--substeps", "8", "--intervals", "linear",
+                   "--out", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert "widening k upper" in err, err
+    res = json.load(open(tmp_path / "r.json"))
+    assert abs(res["params"]["k"]["value"] / float(FERRITE.k) - 1) < 1e-3, res["params"]["k"]
+    assert status == 0 and not res.get("at_bound"), err
+
+
 @pytest.mark.extended  # (two profile checks)
 def test_a_box_that_leaves_fewer_ends_to_profile_compiles_no_new_re_fit(noisy):
     """The profile's re-fits are one batch of two ends per parameter whatever the data

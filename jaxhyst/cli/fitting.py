@@ -16,11 +16,13 @@ WIDENINGS, WIDEN = 3, 5.0
 def widen_derived_box(args, spec, given, loops, problem, result, method: str = "lm",
                       quiet: bool = False, batch: bool = True):
     """A box derived from the data is no constraint of the data: where a fit ends on one
-    of its bounds (not one the user gave, not a physical limit), widen that bound
-    `WIDEN`-fold (within the physical range) and refit from the result (`refit_from`:
-    the fit's own batch of starts, so that nothing new compiles; ``batch=False``: one LM
-    solve), up to `WIDENINGS` times. The loss coefficients' and a form's own parameters' boxes
-    (``spec["extra_bounds"]``) likewise. Returns the last (result, problem)."""
+    of its bounds (not one the user gave, not a physical limit, not a condition law's
+    coefficient), widen that bound `WIDEN`-fold (within the physical range) and refit from
+    the result (`refit_from`: the fit's own batch of starts, so that nothing new
+    compiles; ``batch=False``: one LM solve), up to `WIDENINGS` times. The loss
+    coefficients' and a form's own parameters' boxes (``spec["extra_bounds"]``) likewise,
+    and a condition model's reference values (a law's fold too). Returns the last
+    (result, problem)."""
     import numpy as np
 
     from jaxhyst.io import bounds_from_json, bounds_to_json
@@ -32,15 +34,17 @@ def widen_derived_box(args, spec, given, loops, problem, result, method: str = "
                    "spread": lambda v: (v >= 0) & (v <= 10),
                    "a_rev": lambda v: (v >= 1e-6) & (v <= 1e9)}
     for _ in range(WIDENINGS):
-        if result.result == "interrupted" or isinstance(result.params, dict):
+        if result.result == "interrupted":
             break
         box = {**bounds_to_json(bounds_from_json(spec["bounds"])),
                **{n: list(v) for n, v in (spec.get("extra_bounds") or {}).items()}}
-        widened = []
+        widened, done = [], set()
         for name, (side, bound) in result.at_bound.items():
-            base = base_name(name)
-            if base in (given or {}) or at_physical_limit(base, bound) or base not in box:
+            base = base_name(name)  # (a law's coefficient, 'k:log_f', has no box here)
+            if ":" in name or base in (given or {}) or at_physical_limit(base, bound) or \
+                    base not in box or (base, side) in done:
                 continue
+            done.add((base, side))  # (per-loop entries of one parameter: widened once)
             lo, hi = box[base]
             if side == "upper":
                 new = hi * WIDEN if lo > 0 else hi + (WIDEN - 1) * (hi - lo)
