@@ -1,8 +1,8 @@
 """Programs compiled in a background thread while the caller's own compile and run.
 
 A first fit compiles several programs one after another: its step, then its report's.
-Programs whose shapes are known before they are needed (the report's: `jaxhyst.fit`; the
-finer model of `compensate`'s accuracy check, beside the model's own) can be compiled
+Programs whose shapes are known before they are needed (the report's: `jaxhyst.fit`;
+`compensate`'s refinement, while its models compile) can be compiled
 meanwhile in another thread: `meanwhile` runs a function that calls them once
 on inputs of the right shapes, so that the compiled-program caches hold them when the
 caller gets there. Values are never shared: the thread's results are dropped, and its

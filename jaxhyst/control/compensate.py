@@ -36,10 +36,14 @@ from .limits import InputLimits, InputMap
 from .reach import Reach, Unreachable, reach, unreachable
 from .reference import Reference
 from .refine import (
+    ATOL,
+    CHUNK,
     RESIDUAL_UNIT,
+    RTOL,
     TrackingResiduals,
     affine_input,
     fit_affine,
+    least_squares,
     refine_input,
 )
 from .tracking import Tracking, evaluate, input_gain, settling_periods
@@ -228,14 +232,7 @@ def _check_accuracy(tracking: Tracking, u: np.ndarray, scale: float) -> float:
     suffices."""
     model = tracking.model
     finer = _finer(tracking)
-    # (the finer model's program compiles in another thread while this one's does)
-    background = meanwhile(lambda: evaluate(finer, u), wait=0.0)
-    try:
-        coarse = evaluate(tracking, u)
-    finally:
-        if background is not None:
-            background.join()
-    error = richardson_error(coarse, evaluate(finer, u), size=scale)
+    error = richardson_error(evaluate(tracking, u), evaluate(finer, u), size=scale)
     if not np.isfinite(error) or error <= COARSE:
         return error
     N = tracking.n
@@ -246,6 +243,23 @@ def _check_accuracy(tracking: Tracking, u: np.ndarray, scale: float) -> float:
         f"{what} its displacement error is estimated at {error:.2g} of the reference's "
         f"stroke (above {COARSE:g}); give at least {N * factor} samples {what} (or more "
         f"substeps than {model.substeps}).")
+
+
+#: The inverse model's usual tracking error (a fraction of the stroke: 3e-5 … 1e-4 on
+#: the benchmark's references): a tolerance below it will be refined, so the
+#: refinement's program is compiled while the model's are (`_compile_refinement`).
+INVERSE_TYPICAL = 1e-4
+
+
+def _compile_refinement(residuals: TrackingResiduals, z0, max_steps: int):
+    """The refinement's Levenberg–Marquardt program compiled in a background thread
+    (`jaxhyst._background`) once this one has lowered its next large program (the
+    model's, for the accuracy check): its trace follows this one's, its compile runs
+    beside the model's. Called as `refine_input` first calls it, with the target ∞ (data:
+    the same program) so that it stops after a step; the result is dropped."""
+    z0 = jnp.asarray(z0)
+    return meanwhile(lambda: least_squares(residuals, z0, min(CHUNK, int(max_steps)), RTOL,
+                                           ATOL, jnp.asarray(np.inf, dtype=jnp.float64)))
 
 
 def _model_of(model) -> Model:
@@ -326,8 +340,16 @@ def compensate(model: Model, reference: Reference, *, current_limit=None,
     found = unreachable(reach_, reference.t, reference.displacement, inverse.lam,
                         inverse.u, limits, reference.dt, unit, reference.periodic,
                         2.0 * float(p.Mz) / max(float(p.Cz), 1e-300))
-    if not found:  # (beyond the actuator, the inverse input is no test of the sampling)
-        _check_accuracy(tracking, u_inverse, reference.scale)
+    r = np.asarray(reference.displacement)
+    residuals = TrackingResiduals(tracking, imap, jnp.asarray(r), jnp.asarray(reference.scale))
+    background = _compile_refinement(residuals, imap.coordinates(u_inverse), max_steps) \
+        if refine and tolerance < INVERSE_TYPICAL else None
+    try:
+        if not found:  # (beyond the actuator, the inverse input is no test of the sampling)
+            _check_accuracy(tracking, u_inverse, reference.scale)
+    finally:
+        if background is not None:
+            background.join()
     meter = progress_meter(progress)  # (after the checks: a bad input gets one line)
     state = meter.init("compensate", None)
     if found:
@@ -336,15 +358,12 @@ def compensate(model: Model, reference: Reference, *, current_limit=None,
                       UnreachableWarning, stacklevel=2)
     state = meter.step(state, 1, f"inverse model done ({len(found)} unreachable "
                                  f"stretches); run-in {tracking.run_in_periods} periods")
-    r = np.asarray(reference.displacement)
     u_plain = _uncompensated(tracking, reference, limits, u_inverse)
     y_inverse = evaluate(tracking, u_inverse)
     steps, outcome, u = 0, "not refined", u_inverse
     if refine and rms_error(y_inverse, r, reference.scale) <= tolerance:
         outcome = "successful"  # (the inverse model alone is within the tolerance)
     elif refine:
-        residuals = TrackingResiduals(tracking, imap, jnp.asarray(r),
-                                       jnp.asarray(reference.scale))
         state = meter.step(state, 2, f"refining {reference.n_samples} input samples")
         target = r.shape[0] * (tolerance / RESIDUAL_UNIT) ** 2
         z, steps, outcome = refine_input(residuals, imap.coordinates(u_inverse),
