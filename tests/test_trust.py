@@ -119,6 +119,19 @@ def test_the_exit_status_tells_a_physical_limit_from_a_box():
     assert _exit_status(_result({})) == 0
 
 
+def _widened_to_the_truth(status, err, result_file):
+    """The command said it widened k's upper bound, and ended at the k the loops were made
+    with, inside the widened box (exit 0)."""
+    import json
+
+    from test_measured import FERRITE
+
+    assert "widening k upper" in err, err
+    res = json.load(open(result_file))
+    assert abs(res["params"]["k"]["value"] / float(FERRITE.k) - 1) < 1e-3, res["params"]["k"]
+    assert status == 0 and not res.get("at_bound"), err
+
+
 @pytest.mark.slow  # two CLI fits (~50 s)
 def test_a_derived_box_that_binds_is_widened_and_the_fit_redone(tmp_path, capsys,
                                                                 monkeypatch):
@@ -126,8 +139,6 @@ def test_a_derived_box_that_binds_is_widened_and_the_fit_redone(tmp_path, capsys
     to hold k below a third of its true value: the default command ends on that bound,
     widens it (a box the program invented is no constraint of the data), refits, and
     ends inside the widened box at the k the loop was made with — exit 0, not 4."""
-    import json
-
     from test_measured import FERRITE, _clean_loop
 
     from jaxhyst.identify import measured
@@ -145,11 +156,7 @@ def test_a_derived_box_that_binds_is_widened_and_the_fit_redone(tmp_path, capsys
     np.savetxt(path, np.c_[H, B], delimiter=",", header="H [A/m],B [T]", comments="")
     status = main(["identify", str(path), "--substeps", "8", "--starts", "2",
                    "--out", str(tmp_path / "r.json")])
-    err = capsys.readouterr().err
-    assert "widening k upper" in err, err
-    res = json.load(open(tmp_path / "r.json"))
-    assert abs(res["params"]["k"]["value"] / float(FERRITE.k) - 1) < 1e-3, res["params"]["k"]
-    assert status == 0 and not res.get("at_bound"), err
+    _widened_to_the_truth(status, capsys.readouterr().err, tmp_path / "r.json")
 
 
 @pytest.mark.extended  # (a joint CLI fit with a condition law, refitted)
@@ -160,7 +167,6 @@ def test_a_derived_box_that_binds_a_condition_fit_is_widened_too(tmp_path, capsy
     way): the law's reference value of k ends on the bound that holds it below a third of
     its true value, the bound is widened and the fit redone (condition fits were never
     widened), and k ends at the value the loops were made with."""
-    import json
 
     from test_measured import FERRITE
 
@@ -187,11 +193,7 @@ def test_a_derived_box_that_binds_a_condition_fit_is_widened_too(tmp_path, capsy
     status = main(["identify", str(path), "--joint", "--vary", "c:log_amplitude",
                    "--substeps", "8", "--intervals", "linear",
                    "--out", str(tmp_path / "r.json")])
-    err = capsys.readouterr().err
-    assert "widening k upper" in err, err
-    res = json.load(open(tmp_path / "r.json"))
-    assert abs(res["params"]["k"]["value"] / float(FERRITE.k) - 1) < 1e-3, res["params"]["k"]
-    assert status == 0 and not res.get("at_bound"), err
+    _widened_to_the_truth(status, capsys.readouterr().err, tmp_path / "r.json")
 
 
 @pytest.mark.extended  # (two profile checks)
