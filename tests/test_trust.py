@@ -167,7 +167,6 @@ def test_a_derived_box_that_binds_a_condition_fit_is_widened_too(tmp_path, capsy
     way): the law's reference value of k ends on the bound that holds it below a third of
     its true value, the bound is widened and the fit redone (condition fits were never
     widened), and k ends at the value the loops were made with."""
-
     from test_measured import FERRITE
 
     from jaxhyst.identify import measured
