@@ -254,9 +254,10 @@ INVERSE_TYPICAL = 1e-4
 def _compile_refinement(residuals: TrackingResiduals, z0, max_steps: int):
     """The refinement's Levenberg–Marquardt program compiled in a background thread
     (`jaxhyst._background`) once this one has lowered its next large program (the
-    model's, for the accuracy check): its trace follows this one's, its compile runs
-    beside the model's. Called as `refine_input` first calls it, with the target ∞ (data:
-    the same program) so that it stops after a step; the result is dropped."""
+    model's, for the accuracy check or the uncompensated input): its trace follows this
+    one's, its compile runs beside the model's and the work up to the refinement, which
+    joins it. Called as `refine_input` first calls it, with the target ∞ (data: the same
+    program) so that it stops after a step; the result is dropped."""
     z0 = jnp.asarray(z0)
     return meanwhile(lambda: least_squares(residuals, z0, min(CHUNK, int(max_steps)), RTOL,
                                            ATOL, jnp.asarray(np.inf, dtype=jnp.float64)))
@@ -344,22 +345,22 @@ def compensate(model: Model, reference: Reference, *, current_limit=None,
     residuals = TrackingResiduals(tracking, imap, jnp.asarray(r), jnp.asarray(reference.scale))
     background = _compile_refinement(residuals, imap.coordinates(u_inverse), max_steps) \
         if refine and tolerance < INVERSE_TYPICAL else None
-    try:
+    try:  # (the refinement's program compiles meanwhile, until it is needed)
         if not found:  # (beyond the actuator, the inverse input is no test of the sampling)
             _check_accuracy(tracking, u_inverse, reference.scale)
+        meter = progress_meter(progress)  # (after the checks: a bad input gets one line)
+        state = meter.init("compensate", None)
+        if found:
+            warnings.warn(f"part of the reference is beyond the actuator: {found[0]}"
+                          + (f" (and {len(found) - 1} more)" if len(found) > 1 else ""),
+                          UnreachableWarning, stacklevel=2)
+        state = meter.step(state, 1, f"inverse model done ({len(found)} unreachable "
+                                     f"stretches); run-in {tracking.run_in_periods} periods")
+        u_plain = _uncompensated(tracking, reference, limits, u_inverse)
+        y_inverse = evaluate(tracking, u_inverse)
     finally:
         if background is not None:
             background.join()
-    meter = progress_meter(progress)  # (after the checks: a bad input gets one line)
-    state = meter.init("compensate", None)
-    if found:
-        warnings.warn(f"part of the reference is beyond the actuator: {found[0]}"
-                      + (f" (and {len(found) - 1} more)" if len(found) > 1 else ""),
-                      UnreachableWarning, stacklevel=2)
-    state = meter.step(state, 1, f"inverse model done ({len(found)} unreachable "
-                                 f"stretches); run-in {tracking.run_in_periods} periods")
-    u_plain = _uncompensated(tracking, reference, limits, u_inverse)
-    y_inverse = evaluate(tracking, u_inverse)
     steps, outcome, u = 0, "not refined", u_inverse
     if refine and rms_error(y_inverse, r, reference.scale) <= tolerance:
         outcome = "successful"  # (the inverse model alone is within the tolerance)
