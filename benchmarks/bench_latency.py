@@ -172,7 +172,8 @@ def compiles() -> list[tuple[str, str]]:
         t0 = time.perf_counter()
         with counting() as names:
             again()
-        rows.append((name, f"{len(names)} compilations, {time.perf_counter() - t0:.2f} s"))
+        rows.append((name, f"{len(names.names)} compilations, "
+                           f"{time.perf_counter() - t0:.2f} s"))
         print(rows[-1], flush=True)
 
     second("compensate: new current limit",
