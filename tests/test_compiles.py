@@ -60,13 +60,15 @@ MODEL = jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1)
 
 def test_compensate_compiles_nothing_for_a_new_limit_frequency_or_tolerance():
     """… and its first call compiles the refinement's program in a background thread
-    while the model's compile (once: not again in the caller's), leaving no thread."""
+    while the model's compile, and the inverse path's and the settling check's while the
+    reach is swept (each once: not again in the caller's), leaving no thread."""
     ref = sinusoidal_reference(100.0, 20e-6, 45e-6, samples_per_period=98)  # (its own shape)
     with counting() as first:
         jh.compensate(MODEL, ref, current_limit=2.5, max_steps=3)
-    assert first.threads.get("jit(least_squares)") == {"jaxhyst-compile-meanwhile"}, \
-        first.threads
-    assert sum(n.startswith("Compiling jit(least_squares) ") for n in first.names) == 1
+    for program in ("least_squares", "_field", "_period_starts"):
+        assert first.threads.get(f"jit({program})") == {"jaxhyst-compile-meanwhile"}, \
+            first.threads
+        assert sum(n.startswith(f"Compiling jit({program}) ") for n in first.names) == 1
     assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-meanwhile"]
     other = sinusoidal_reference(140.0, 15e-6, 40e-6, samples_per_period=98)
     with counting() as compiled:

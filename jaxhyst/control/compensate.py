@@ -31,7 +31,7 @@ from ..drive import Drive
 from ..model.accuracy import richardson_error
 from ..progress import progress_meter
 from ..saved import Model
-from .inverse import inverse_input
+from .inverse import compile_field, inverse_input
 from .limits import InputLimits, InputMap
 from .reach import Reach, Unreachable, reach, unreachable
 from .reference import Reference
@@ -46,7 +46,7 @@ from .refine import (
     least_squares,
     refine_input,
 )
-from .tracking import Tracking, evaluate, input_gain, settling_periods
+from .tracking import Tracking, compile_settling, evaluate, input_gain, settling_periods
 
 #: Largest estimated model error at the reference's sampling, relative to its stroke.
 COARSE = 1e-3
@@ -324,7 +324,17 @@ def compensate(model: Model, reference: Reference, *, current_limit=None,
                          f"takes at most {MAX_REFINED} at once (split the record, or pass "
                          "refine=False for the inverse model alone).")
     tracking = Tracking.of(model, reference)
-    reach_ = reach(model, limits, gain)
+    # (the inverse path's and the settling check's programs compile in threads of their
+    # own while the reach is swept: their shapes are the reference's)
+    early = [meanwhile(lambda: compile_field(tracking, reference), wait=0.0)]
+    if reference.periodic:
+        early.append(meanwhile(lambda: compile_settling(tracking), wait=0.0))
+    try:
+        reach_ = reach(model, limits, gain)
+    finally:
+        for job in early:
+            if job is not None:
+                job.join()
     inverse = inverse_input(tracking, reference, reach_)
     if limits is None:  # the range the optimiser may use: the inverse's, widened
         lo, hi = float(inverse.u.min()), float(inverse.u.max())

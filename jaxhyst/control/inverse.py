@@ -56,13 +56,32 @@ def _rate(x: np.ndarray, t: np.ndarray, dt: float, periodic: bool) -> np.ndarray
     return np.gradient(x, t, edge_order=2)
 
 
+def path_length(tracking: Tracking, reference: Reference) -> tuple[int, int]:
+    """(samples of the inverse path, the first sample of the returned stretch): the ramp,
+    then `INVERSE_RUN_IN_PERIODS` + 1 periods (a periodic reference) or a hold and the
+    record."""
+    if reference.periodic:
+        start = tracking.n_ramp + INVERSE_RUN_IN_PERIODS * reference.n_samples
+    else:
+        start = tracking.n_ramp + tracking.hold
+    return start + reference.n_samples, start
+
+
+def compile_field(tracking: Tracking, reference: Reference) -> None:
+    """Compile (and run once, on a path of zeros) the inverse path's program for this
+    reference's shape: what `inverse_input` will run (a background compile)."""
+    model = tracking.model
+    _field(model.params, jnp.zeros(path_length(tracking, reference)[0]), model.variant,
+           model.substeps)
+
+
 def inverse_input(tracking: Tracking, reference: Reference, reach: Reach) -> InverseInput:
     """The inverse model's input for ``reference`` (see the module docstring)."""
     model = tracking.model
     p = model.params
     y = np.asarray(reference.displacement, dtype=np.float64)
     t = np.asarray(reference.t, dtype=np.float64)
-    dt, N = reference.dt, reference.n_samples
+    dt = reference.dt
     lam = required_magnetostriction(p, model.actuator.Ar, y, dt, reference.periodic,
                                     None if reference.periodic else t)
     lam_lo, lam_hi = reach.lam
@@ -74,12 +93,10 @@ def inverse_input(tracking: Tracking, reference: Reference, reach: Reach) -> Inv
     Ms = M + tau * _rate(M, t, dt, reference.periodic) if tau > 0 else M
     ramp = Ms[0] * np.arange(tracking.n_ramp) / tracking.n_ramp
     if reference.periodic:
-        K = INVERSE_RUN_IN_PERIODS
-        path = np.concatenate([ramp, np.tile(Ms, K + 1)])
-        start = tracking.n_ramp + K * N
+        path = np.concatenate([ramp, np.tile(Ms, INVERSE_RUN_IN_PERIODS + 1)])
     else:
         path = np.concatenate([ramp, np.full(tracking.hold, Ms[0]), Ms])
-        start = tracking.n_ramp + tracking.hold
+    start = path_length(tracking, reference)[1]
     H = np.asarray(_field(p, jnp.asarray(path), model.variant, model.substeps))[start:]
     if model.losses is not None:
         B = MU0 * (H + M)

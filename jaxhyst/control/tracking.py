@@ -139,6 +139,12 @@ def settling_periods(tracking: Tracking, u) -> tuple[int, float]:
     return periods, float(change[min(periods, change.shape[0]) - 1])
 
 
+def compile_settling(tracking: Tracking) -> None:
+    """Compile (and run once, on a zero input) the program `settling_periods` will run
+    for this tracking's shape (a background compile)."""
+    _period_starts(tracking.with_run_in(MAX_RUN_IN_PERIODS), jnp.zeros(tracking.n))
+
+
 def evaluate(tracking: Tracking, u) -> np.ndarray:
     """`Tracking.displacement` of u as host values (one compiled program)."""
     return np.asarray(_displacement(tracking, jnp.asarray(u)))
