@@ -43,6 +43,10 @@ class InverseInput(eqx.Module):
     M: np.ndarray
 
 
+#: (one small program, not five operations run one by one)
+_magnetization = eqx.filter_jit(magnetization_for_magnetostriction)
+
+
 @eqx.filter_jit
 def _field(p, M, variant, substeps):
     return field_for_magnetization(p, M, variant, substeps)
@@ -71,8 +75,8 @@ def compile_field(tracking: Tracking, reference: Reference) -> None:
     """Compile (and run once, on a path of zeros) the inverse path's program for this
     reference's shape: what `inverse_input` will run (a background compile)."""
     model = tracking.model
-    _field(model.params, jnp.zeros(path_length(tracking, reference)[0]), model.variant,
-           model.substeps)
+    zeros = np.zeros(path_length(tracking, reference)[0])  # (a transfer, not a program)
+    _field(model.params, jnp.asarray(zeros), model.variant, model.substeps)
 
 
 def inverse_input(tracking: Tracking, reference: Reference, reach: Reach) -> InverseInput:
@@ -86,7 +90,7 @@ def inverse_input(tracking: Tracking, reference: Reference, reach: Reach) -> Inv
                                     None if reference.periodic else t)
     lam_lo, lam_hi = reach.lam
     held = np.clip(lam, lam_lo, lam_lo + (lam_hi - lam_lo) * (1.0 - 1e-6))
-    M = np.asarray(magnetization_for_magnetostriction(jnp.asarray(held), p, reach.sign))
+    M = np.asarray(_magnetization(jnp.asarray(held), p, reach.sign))
     # the static model's magnetization that M relaxes from (the after-effect,
     # τ_M·dM/dt = M_s − M): M itself without it
     tau = 0.0 if model.losses is None else float(model.losses.relax)

@@ -142,7 +142,7 @@ def settling_periods(tracking: Tracking, u) -> tuple[int, float]:
 def compile_settling(tracking: Tracking) -> None:
     """Compile (and run once, on a zero input) the program `settling_periods` will run
     for this tracking's shape (a background compile)."""
-    _period_starts(tracking.with_run_in(MAX_RUN_IN_PERIODS), jnp.zeros(tracking.n))
+    _period_starts(tracking.with_run_in(MAX_RUN_IN_PERIODS), jnp.asarray(np.zeros(tracking.n)))
 
 
 def evaluate(tracking: Tracking, u) -> np.ndarray:
