@@ -13,6 +13,7 @@ from ._background import meanwhile
 from .analysis.identifiability import compile_report, identifiability
 from .identify.result import stopped_short
 from .identify.signal import sampling_error
+from .identify.summary import point_of
 
 
 def attach_report(result, problem, report: bool | str = True):
@@ -111,9 +112,11 @@ def _compile_report_meanwhile(problem, report):
         return None
 
     def work():
-        centre = problem.space.params_from_u(np.full(problem.space.n_free, 0.5))
+        # (the box's centre, u = 0.5 at z = 0, by the program every fit's summary runs:
+        # not op by op, which compiles a dozen tiny programs on this thread's path)
+        values, centre = point_of(problem.space, np.zeros(problem.space.n_free))
         sampling_error(problem, centre)
-        compile_report(problem, centre)
+        compile_report(problem, values)
         if key is not None:
             _COMPILED.add(key)
         # (not the profile check's re-fits: they run only where the fit is not exact,

@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..identify.result import bound_status
+from ..identify.space import free_values_of
 from ..params import NAMES
 from .intervals import bound_aware_intervals, box_in_x, x_side
 from .misspecification import misspecification
@@ -104,11 +105,11 @@ def whitened_log_jacobian(problem, x0, scale):
 _log_jacobian = eqx.filter_jit(whitened_log_jacobian)
 
 
-def compile_report(problem, params) -> None:
+def compile_report(problem, values) -> None:
     """Compile the report's whitened Jacobian for ``problem`` (its program depends on the
-    problem's structure and shapes only) by evaluating it once at ``params`` — for a
-    background thread while the fit runs (`jaxhyst.fit`)."""
-    x0 = np.asarray(problem.space.free_values(params), dtype=float)
+    problem's structure and shapes only) by evaluating it once at the free ``values``
+    (SI, shape (n_free,)) — for a background thread while the fit runs (`jaxhyst.fit`)."""
+    x0 = np.asarray(values, dtype=float)
     _log_jacobian(problem, jnp.asarray(x0), jnp.asarray(np.ones_like(x0)))
 
 
@@ -135,8 +136,8 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     """
     space = problem.space
     names = tuple(space.names)
-    values = np.asarray(space.free_values(params), dtype=float)
-    width = np.asarray(space.upper - space.lower)
+    values = np.asarray(free_values_of(space, params), dtype=float)
+    width = np.asarray(space.upper) - np.asarray(space.lower)
     # signed θ0, so that x = dθ/θ0 = d log|θ| also for negative θ (α̃)
     scale = np.where(np.abs(values) > 1e-9 * width, values, np.where(width > 0, width, 1.0))
     J, e, sigma = (np.asarray(a) for a in _log_jacobian(problem, jnp.asarray(values),

@@ -45,7 +45,7 @@ from ..identify import solve_traced
 from ..identify.problem import cost_at
 from ..identify.result import stopped_short
 from ..identify.solvers import make_solver
-from ..identify.space import u_from_z, z_from_u
+from ..identify.space import free_values_of, u_from_z, z_from_u
 from .intervals import critical_value, held_at_bounds, path_point
 from .wording import Z95
 
@@ -99,7 +99,7 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
     not bound inside the box."""
     space = problem.space
     names = list(report.names)
-    x_hat = np.asarray(space.free_values(params), dtype=float)
+    x_hat = np.asarray(free_values_of(space, params), dtype=float)
     lower, upper = np.asarray(space.lower, float), np.asarray(space.upper, float)
     scale = np.asarray(report.scale, float)
     cost0 = float(cost_at(problem, space.z_from_params(params)))
