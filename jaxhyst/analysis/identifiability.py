@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..identify.result import bound_status
-from ..identify.space import free_values_of
+from ..identify.summary import free_values_of
 from ..params import NAMES
 from .intervals import bound_aware_intervals, box_in_x, x_side
 from .misspecification import misspecification

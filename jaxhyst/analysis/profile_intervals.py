@@ -45,7 +45,8 @@ from ..identify import solve_traced
 from ..identify.problem import cost_at
 from ..identify.result import stopped_short
 from ..identify.solvers import make_solver
-from ..identify.space import free_values_of, u_from_z, z_from_u
+from ..identify.space import u_from_z, z_from_u
+from ..identify.summary import free_values_of
 from .intervals import critical_value, held_at_bounds, path_point
 from .wording import Z95
 

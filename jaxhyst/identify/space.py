@@ -42,13 +42,6 @@ def z_from_u(u: Float[ArrayLike, "*batch n"]) -> Float[Array, "*batch n"]:
     return jnp.arcsin(jnp.clip(2.0 * jnp.asarray(u) - 1.0, -1.0, 1.0))
 
 
-@eqx.filter_jit
-def free_values_of(space, params) -> Array:
-    """``space.free_values(params)`` as one compiled program (run op by op on concrete
-    arrays, it compiles a dozen tiny ones in every fresh process)."""
-    return space.free_values(params)
-
-
 def _leaf_name(path) -> str:
     """A readable name for a pytree path: ``Ms``, ``coil.R``, ``gains[2]``."""
     parts = []

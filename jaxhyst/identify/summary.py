@@ -35,6 +35,13 @@ def point_of(space, z):
     return space.free_from_u(u_from_z(z)), space.params_from_z(z)
 
 
+@eqx.filter_jit
+def free_values_of(space, params):
+    """``space.free_values(params)`` as one compiled program (run op by op on concrete
+    arrays, it compiles a dozen tiny ones in every fresh process)."""
+    return space.free_values(params)
+
+
 def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: float,
               extra: dict | None = None, evaluated=None) -> IdentificationResult:
     """An `IdentificationResult` at the solver coordinate ``z`` (without report).
