@@ -31,6 +31,7 @@ from ..identify.problem import cost_at
 from ..identify.result import bound_status, stopped_short
 from ..identify.solvers import make_solver
 from ..identify.space import u_from_z
+from ..identify.summary import free_values_of
 from ..progress import progress_meter
 from ..sharding import batch_sharding, place
 from .identifiability import whitened_log_jacobian
@@ -148,7 +149,7 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
         raise ValueError("A profile needs at least one other free parameter to re-fit.")
     i_free = space.names.index(name)
     lo, hi = float(space.lower[i_free]), float(space.upper[i_free])
-    value = float(np.asarray(space.free_values(params))[i_free])
+    value = float(np.asarray(free_values_of(space, params))[i_free])
     if grid is None:
         from .identifiability import identifiability
 
