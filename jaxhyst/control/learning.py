@@ -18,10 +18,11 @@ perturbation at one sample moves the magnetization from there on), so damping wo
 keep mostly those, while the exact step for a smooth error is smooth — which is why the
 error is filtered first: the measurement noise beyond the band never reaches the step.
 
-- **The measurement steers the step.** A step whose measured error is not higher than
-  the one before (beyond the noise) is accepted; when the error fell by at least 3/4 of
-  the fall the model predicted, the step factor γ grows (×1.5, to 1) and the band f_c
-  doubles (up to the Nyquist frequency, or half the band of the last undone step); by
+- **The measurement steers the step.** The first step learns below `FIRST_BAND` of the
+  Nyquist frequency. A step whose measured error is not higher than the one before
+  (beyond the noise) is accepted; when the error fell by at least 3/4 of the fall the
+  model predicted, the step factor γ grows (×1.5, to 1) and the band f_c doubles (up to
+  the Nyquist frequency, or half the band of the last undone step); by
   less than 1/4, γ halves. A step after which the error *rose* is undone (the next input
   is built from the best one): where the measured error departs most from the model's
   prediction at twice the reference's fundamental or above (an unmodelled mode shows
@@ -33,18 +34,15 @@ error is filtered first: the measurement noise beyond the band never reaches the
   input (their scatter) or from the upper half of the error's spectrum (where a tracking
   error has little power); repeated measurements are averaged. Learning stops at the
   noise floor (the measured error within 1.5σ): further steps would learn the noise.
-- **Delay.** The lag between the measured displacement and the model's prediction for
-  the applied input is found by cross-correlation; a lag of whole samples is corrected
-  (the record shifted back) and reported, or refused with the shift named
-  (``delay="refuse"``). The delay found at the first measurement is held (an
-  acquisition's delay does not change between trials; a later lag is the plant's phase
-  at that input). Only a late measurement is a delay: one that leads shows the plant's
-  phase, reported, not corrected. A late one is ambiguous: a plant a little off the
-  model lags or leads it by a fraction of its phase (about a sample at 200 per period
-  for 10 %), and such a lag corrected as a delay leaves the plant tracking a shifted
-  reference (several σ off at a measured noise floor; a stop on it says so). Where the
-  acquisition's delay is known, give it (``delay=0``, ``3`` …): it is then corrected
-  exactly and every lag beyond it is the plant's phase.
+- **Delay.** The lag of the measured displacement behind the model's prediction is
+  found by cross-correlation; whole samples of it are corrected (the record shifted
+  back) and reported, or refused with the shift named (``delay="refuse"``). The delay
+  found at the first measurement is held (an acquisition's does not change; a later lag
+  is the plant's phase). A lead is the plant's phase, never a delay. A lag is ambiguous:
+  a plant 10 % off the model lags or leads it by about a sample at 200 per period, and
+  such a lag corrected as a delay leaves the plant tracking a shifted reference (a stop
+  on it says so). Where the acquisition's delay is known, give it (``delay=0``, ``3``
+  …): it is then corrected exactly and every lag beyond it is the plant's phase.
 - **Phase.** The lag left between plant and model (after any delay) is a phase error
   growing with frequency; learning is limited to the band where it stays below
   `PHASE_MARGIN` (π/3; learning diverges beyond π/2).
@@ -62,9 +60,9 @@ error is filtered first: the measurement noise beyond the band never reaches the
 
 Use: ``learner = IterativeLearning.of(model, reference, current_limit=…)``; ``state =
 learner.init()``; then repeatedly apply ``state.input``, measure the displacement at the
-reference's samples (in the steady state, for a periodic reference; several periods:
-shape (R, N)) and call ``state = learner.step(state, measured)``; ``state.stopped`` says
-why it stopped, ``state.reports`` what each step did.
+reference's samples (steady state; several periods: shape (R, N)), ``state =
+learner.step(state, measured)``; ``state.stopped`` says why it stopped, ``state.reports``
+what each step did.
 """
 
 from __future__ import annotations
@@ -103,6 +101,9 @@ NEAR_FLOOR = 8.0
 #: swing, over the rms error over the stroke): a drive of gain stroke/swing needs 1; the
 #: model's own first steps on plants 10 % off lie at 0.6–0.95 (benchmarks/RESULTS.md).
 FIRST_REACH = 2.0
+#: The first step's band over the Nyquist frequency (Nyquist-wide first steps raised the
+#: error of plants 10 % off by more than the noise: benchmarks/RESULTS.md).
+FIRST_BAND = 0.25
 #: The phase error (radians) the model may have at the top of the learning band: the
 #: band ends where the lag between plant and model found at the fundamental would turn
 #: the phase by this much (learning diverges beyond π/2).
@@ -180,9 +181,8 @@ class IterativeLearning(eqx.Module):
         return self.compensation.reference
 
     def initial_band(self) -> float:
-        """f_c of the first step (Hz): the Nyquist frequency (the measurements narrow it
-        where the model fails)."""
-        return 0.5 / self.reference.dt
+        """f_c of the first step (Hz): `FIRST_BAND` of the Nyquist frequency."""
+        return FIRST_BAND * 0.5 / self.reference.dt
 
     def init(self) -> LearningState:
         """The state before the first measurement: the model's compensating input."""
