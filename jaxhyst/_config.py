@@ -134,7 +134,9 @@ def enable_compilation_cache(directory: str | os.PathLike | None = None) -> Path
     except OSError:  # read-only home etc.: run without a cache rather than fail
         return None
     jax.config.update("jax_compilation_cache_dir", str(target))
-    # Cache even small compilations: a time loop takes seconds to compile.
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    # Cache even small compilations: a time loop takes seconds to compile; programs of
+    # 0.1–0.5 s (a report's cost, a batch's parameter values) are loaded faster than
+    # compiled, the ~0.05 s single operations are not (benchmarks/RESULTS.md, issue 45).
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.1)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return target
