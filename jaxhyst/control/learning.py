@@ -47,7 +47,7 @@ error is filtered first: the measurement noise beyond the band never reaches the
   growing with frequency; learning is limited to the band where it stays below
   `PHASE_MARGIN` (π/3; learning diverges beyond π/2).
 - **Step size.** A step is no larger, per unit of measured error, than `REACH_GROWTH`
-  (1.5) times the largest step per unit of error after which the error fell as the
+  (1.25) times the largest step per unit of error after which the error fell as the
   model predicted — within `NEAR_FLOOR` (8) times the noise, no larger than that step
   itself: a linearisation is not trusted farther than the plant has followed it
   (``state.reach``; halved with an undone step). The first step is the model's own,
@@ -93,7 +93,7 @@ MAX_REJECTED = 3
 NOISE_FLOOR = 1.5
 #: A step whose error fell as predicted lets the next steps be this many times as large
 #: per unit of error (`LearningState.reach`).
-REACH_GROWTH = 1.5
+REACH_GROWTH = 1.25
 #: … but not within this multiple of the noise (there a step that outgrew what the
 #: plant followed made the measured error rise by more than σ: benchmarks/RESULTS.md).
 NEAR_FLOOR = 8.0
