@@ -38,11 +38,15 @@ error is filtered first: the measurement noise beyond the band never reaches the
   found by cross-correlation; whole samples of it are corrected (the record shifted
   back) and reported, or refused with the shift named (``delay="refuse"``). The delay
   found at the first measurement is held (an acquisition's does not change; a later lag
-  is the plant's phase). A lead is the plant's phase, never a delay. A lag is ambiguous:
-  a plant 10 % off the model lags or leads it by about a sample at 200 per period, and
-  such a lag corrected as a delay leaves the plant tracking a shifted reference (a stop
-  on it says so). Where the acquisition's delay is known, give it (``delay=0``, ``3``
-  …): it is then corrected exactly and every lag beyond it is the plant's phase.
+  is the plant's phase). A lead is the plant's phase, never a delay. A small lag is
+  ambiguous: a plant 10 % off the model lags or leads it by up to ~1.5 samples at 200
+  per period, and such a lag corrected as a delay leaves the plant tracking a shifted
+  reference. A lag under `signals.AMBIGUOUS_PHASE` (5° at the fundamental) is taken for a
+  delay only where shifting the record back explains its departure from the model
+  (`signals.delay_explained`); else it is learned as the plant's phase, and the first
+  report and the stop name it. Where the acquisition's delay is known, give it
+  (``delay=0``, ``3`` …): it is then corrected exactly and every lag beyond it is the
+  plant's phase.
 - **Phase.** The lag left between plant and model (after any delay) is a phase error
   growing with frequency; learning is limited to the band where it stays below
   `PHASE_MARGIN` (π/3; learning diverges beyond π/2).
@@ -80,7 +84,7 @@ from .learning_state import LearningReport, LearningState
 from .limits import InputMap
 from .reference import Reference
 from .refine import RESIDUAL_UNIT, TrackingResiduals
-from .signals import DELAY_THRESHOLD, estimate_delay, low_pass, noise_level, shift_back
+from .signals import automatic_delay, delay_note, estimate_delay, low_pass, noise_level, shift_back
 from .tracking import Tracking, evaluate
 
 #: Singular values of J below this fraction of the largest are cut from a learning step.
@@ -108,9 +112,6 @@ FIRST_BAND = 0.25
 #: band ends where the lag between plant and model found at the fundamental would turn
 #: the phase by this much (learning diverges beyond π/2).
 PHASE_MARGIN = np.pi / 3
-#: A lag found whose phase at the fundamental is below this (radians, 5°) may be the
-#: plant's own: its correction as a delay is reported as ambiguous.
-AMBIGUOUS_PHASE = np.deg2rad(5.0)
 
 
 def _borne_out(reach, ratio, growth):
@@ -217,9 +218,17 @@ class IterativeLearning(eqx.Module):
             bad = np.flatnonzero(~np.isfinite(y.reshape(-1)))[:5].tolist()
             raise ValueError(f"the measured displacement is NaN or infinite at samples "
                              f"{bad}; repair the measurement.")
-        periodic = self.reference.periodic
-        mean = y.mean(axis=0) if y.ndim == 2 else y
-        found = estimate_delay(mean, self.predict(state), periodic)
+        periodic, r = self.reference.periodic, np.asarray(self.reference.displacement)
+
+        def mean_and_sigma(y):  # (σ of the measurements' average)
+            mean = y.mean(axis=0) if y.ndim == 2 else y
+            sigma = self.noise * self.reference.scale if self.noise is not None else \
+                noise_level(y, r - mean)
+            return mean, sigma / np.sqrt(y.shape[0] if y.ndim == 2 else 1)
+
+        mean, sigma = mean_and_sigma(y)
+        predicted = self.predict(state)
+        found = estimate_delay(mean, predicted, periodic)
         # (a measurement can only be late: one that leads the prediction shows the
         # plant's phase differing from the model's, which learning absorbs)
         if isinstance(self.delay, int):  # (the acquisition's delay, known)
@@ -229,35 +238,24 @@ class IterativeLearning(eqx.Module):
             # at the first is held; a lag found later is the plant's phase at that input)
             lag = state.reports[0].delay
         else:
-            lag = int(np.round(found)) if found >= DELAY_THRESHOLD else 0
+            lag = automatic_delay(mean, predicted, found, sigma, periodic)
         if lag and self.delay == "refuse":
             raise DelayError(f"the measured displacement lags the input by {lag} samples "
                              f"({lag * self.reference.dt:.3g} s): shift it back (or let "
                              "learning correct it: delay='correct').")
-        y = shift_back(y, lag, periodic)
-        mean = y.mean(axis=0) if y.ndim == 2 else y
-        r = np.asarray(self.reference.displacement)
-        if self.noise is not None:
-            sigma = self.noise * self.reference.scale
-        else:
-            sigma = noise_level(y, r - mean)
-        if y.ndim == 2:
-            sigma /= np.sqrt(y.shape[0])  # (of their average)
+        if lag:
+            y = shift_back(y, lag, periodic)
+            mean, sigma = mean_and_sigma(y)
         return mean, lag, sigma, found
 
     def _alignment_note(self, state: LearningState, lag: int, found: float) -> str:
-        """What a stop adds where the record was aligned by a delay found automatically
-        that a plant a little off the model could show by itself (empty otherwise)."""
-        delay, first = (lag, found) if not state.reports else \
-            (state.reports[0].delay, state.reports[0].lag)
-        if self.delay != "correct" or not delay or \
-                2 * np.pi * first / self.reference.n_samples >= AMBIGUOUS_PHASE:
+        """What a stop adds where the first measurement's lag was one a plant a little
+        off the model could show by itself (empty otherwise)."""
+        if self.delay != "correct":
             return ""
-        n = f"{delay} sample" + ("s" if delay != 1 else "")
-        return (f"; the record was aligned by a delay of {n} found automatically, as much "
-                "as a plant a little off the model lags by itself: if the acquisition has "
-                f"no delay, the actuator follows the reference {n} late (give the delay: "
-                "delay=0, --known-delay 0)")
+        return delay_note(*((lag, found) if not state.reports else
+                            (state.reports[0].delay, state.reports[0].lag)),
+                          self.reference.n_samples, stop=True)
 
     def step(self, state: LearningState, measured) -> LearningState:
         """The next state, from the displacement ``measured`` (m, shape (N,) or (R, N):
@@ -316,11 +314,8 @@ class IterativeLearning(eqx.Module):
             why = (f"the error rose from {state.best_error:.3e} to {error:.3e}: back to the "
                    f"best input; {where}")
             best_z, best_error, best_e = state.best_z, state.best_error, state.best_e
-        if lag and self.delay == "correct" and not state.reports and \
-                2 * np.pi * found / ref.n_samples < AMBIGUOUS_PHASE:
-            why += (f"; a plant a little off the model may lag it by {found:.2g} samples "
-                    "by itself: give the acquisition's delay where it is known (delay=, "
-                    "--known-delay)")
+        if self.delay == "correct" and not state.reports:
+            why += delay_note(lag, found, ref.n_samples, stop=False)
         errors = (*state.errors, error)
         stop = None
         if best_error <= NOISE_FLOOR * noise or best_error == 0:

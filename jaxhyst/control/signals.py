@@ -83,3 +83,72 @@ def low_pass(x: np.ndarray, dt: float, cutoff: float, sigma: float = 0.0) -> np.
 #: The amplitude of a frequency of the error, in noise σ·√N, below which it is not
 #: learned (it may be noise).
 SIGNIFICANT = 3.0
+
+
+#: A lag whose phase at the fundamental is below this (radians, 5°) may be the plant's
+#: own: a plant 10 % off the model lags or leads it by up to ~1.5 samples at 200 samples
+#: per period (benchmarks/RESULTS.md).
+AMBIGUOUS_PHASE = np.deg2rad(5.0)
+#: Such a lag is taken for an acquisition delay only where shifting the record back
+#: leaves at most this fraction of its rms departure from the model (beyond the noise).
+EXPLAINED = 0.5
+
+
+def ambiguous(found: float, n: int) -> bool:
+    """Whether a lag of ``found`` samples (of ``n`` a period) is one a plant a little off
+    the model could show by itself (`AMBIGUOUS_PHASE`)."""
+    return 2 * np.pi * found / n < AMBIGUOUS_PHASE
+
+
+def delay_explained(measured: np.ndarray, predicted: np.ndarray, lag: int, sigma: float,
+                    periodic: bool) -> bool:
+    """Whether shifting ``measured`` back by ``lag`` samples explains its departure from
+    ``predicted``: the mean square departure beyond the noise σ² left after the shift at
+    most `EXPLAINED`² of what it was — a model right but for the acquisition's delay; a
+    plant off the model that lags it by itself keeps most of its departure."""
+    before = float(np.mean((measured - predicted) ** 2)) - sigma**2
+    after = float(np.mean((shift_back(measured, lag, periodic) - predicted) ** 2)) - sigma**2
+    return before > 0 and after <= EXPLAINED**2 * before
+
+
+def automatic_delay(measured: np.ndarray, predicted: np.ndarray, found: float, sigma: float,
+                    periodic: bool) -> int:
+    """The acquisition's delay (whole samples) taken from the lag ``found`` of a record
+    ``measured`` (σ: its noise) behind the model's ``predicted``: none below
+    `DELAY_THRESHOLD`; a lag a plant off the model could show by itself (`ambiguous`)
+    only where shifting the record back explains its departure (`delay_explained`);
+    a larger one rounded."""
+    lag = int(np.round(found)) if found >= DELAY_THRESHOLD else 0
+    if lag and ambiguous(found, measured.shape[-1]) and \
+            not delay_explained(measured, predicted, lag, sigma, periodic):
+        return 0
+    return lag
+
+
+def delay_note(lag: int, found: float, n: int, stop: bool) -> str:
+    """What learning's first report (``stop`` False) or a stop says of the first
+    measurement's lag ``found`` (samples, of ``n`` a period) where a plant a little off
+    the model could show it by itself, ``lag`` the delay taken; empty otherwise."""
+    if found < DELAY_THRESHOLD or not ambiguous(found, n):
+        return ""
+    k = int(np.round(found))
+    count = f"{k} sample" + ("s" if k != 1 else "")
+    if lag and stop:
+        return (f"; the record was aligned by a delay of {count} found automatically, as "
+                "much as a plant a little off the model lags by itself: if the acquisition "
+                f"has no delay, the actuator follows the reference {count} late (give the "
+                "delay: delay=0, --known-delay 0)")
+    if lag:
+        return (f"; shifting the record back {count} explains its departure from the "
+                f"model, but a plant a little off the model may lag it by {found:.2g} "
+                "samples by itself: give the acquisition's delay where it is known "
+                "(delay=, --known-delay)")
+    if stop:
+        return (f"; the record lagged the model by {found:.2g} samples, not taken for an "
+                f"acquisition delay: if the acquisition delays it by {count}, the actuator "
+                f"leads the reference by as much (give the delay: delay={k}, "
+                f"--known-delay {k})")
+    return (f"; the record lags the model by {found:.2g} samples, as a plant a little off "
+            "the model can by itself, and shifting it back does not explain its departure "
+            "from the model: not taken for an acquisition delay (give the acquisition's "
+            f"delay where it is known: delay={k}, --known-delay {k})")
