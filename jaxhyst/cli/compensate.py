@@ -85,7 +85,8 @@ def add_parser(sub) -> None:
                         "if it exists and written after the step, so that learning carries "
                         "its trust region from run to run")
     parser.add_argument("--gain", type=POSITIVE, help="a factor in (0, 1] on every learning "
-                        "step (default 1: the norm-optimal step) for --measured or --plant")
+                        "step (default 1: the model's full step, held by the trust region) for "
+                        "--measured or --plant")
     parser.add_argument("--plant", help="rehearse learning on a simulated actuator with these "
                         "parameters (table1, table3:<Hz> or a JSON file): --iterations runs")
     parser.add_argument("--iterations", type=POSITIVE_INT, default=10,
