@@ -259,6 +259,16 @@ def test_a_shifted_record_is_detected_and_corrected_or_refused(learner, delay):
         strict.step(strict.init(), plant.measure(learner.init().input))
 
 
+def test_a_one_sample_delay_found_a_little_under_one_sample_is_corrected(learner):
+    """With noise the exact model's record, late by one sample, is found lagging by a
+    little less (0.99 here): it rounds to one sample, and the shift explains the record
+    (the departure left is the noise), so it is corrected."""
+    plant = SimulatedPlant(MODEL, SINE, delay=1, noise=0.005, seed=1)
+    state = learner.step(learner.init(), plant.measure(learner.init().input))
+    report = state.reports[-1]
+    assert 0.5 < report.lag < 1.0 and report.delay == 1, report
+
+
 def test_the_delay_found_at_the_first_measurement_is_held(learner):
     """An acquisition delay does not change between trials: found at the first
     measurement (2 samples), it is held for the next, where a record that lags by a

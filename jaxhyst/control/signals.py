@@ -46,11 +46,11 @@ def estimate_delay(measured: np.ndarray, predicted: np.ndarray, periodic: bool) 
     return float(lags[i])
 
 
-#: A late measurement is taken for an acquisition delay (and corrected by whole samples)
-#: from this many samples on; smaller lags may be the model's own phase error (plants
-#: 10 % off the model differ from it by −1.4 … +0.9 samples at 200 samples per period:
-#: benchmarks/RESULTS.md), which learning absorbs. The lag found is reported either way.
-DELAY_THRESHOLD = 1.0
+#: A late measurement may be an acquisition delay (corrected by whole samples) from
+#: where it rounds to one sample on; whether a lag this small is taken for one is
+#: `automatic_delay`'s question (a plant 10 % off the model lags or leads it by up to
+#: ~1.5 samples at 200 per period by itself). The lag found is reported either way.
+DELAY_THRESHOLD = 0.5
 
 
 def shift_back(measured: np.ndarray, lag: int, periodic: bool) -> np.ndarray:
