@@ -312,9 +312,9 @@ def test_a_lag_a_plant_off_the_model_shows_by_itself_is_not_taken_for_a_delay(le
     """A plant with every parameter 10 % off (signs fixed) whose record comes 1 sample
     late lags the model by ~1.2 samples — as much as such a plant may lag by itself, and
     shifting the record back leaves most of its departure from the model: no delay is
-    taken, the first report names the lag and how to give a delay, and the stop says what
-    follows if there was one. (The exact model late by 2 samples is corrected, above:
-    there the shift explains the record.)"""
+    taken (nor refused, with ``delay="refuse"``), the first report names the lag and how
+    to give a delay, and the stop says what follows if there was one. (The exact model
+    late by 2 samples is corrected, above: there the shift explains the record.)"""
     signs = np.array([1, 1, 1, -1, -1, -1, -1, -1, -1, 1])
     p = jh.Parameters.from_array(np.asarray(jh.TABLE3[10].to_array()) * (1 + 0.1 * signs))
     plant = SimulatedPlant(jh.Model(p, jh.ACTUATOR2), SINE, delay=1, noise=0.005, seed=0)
@@ -323,6 +323,10 @@ def test_a_lag_a_plant_off_the_model_shows_by_itself_is_not_taken_for_a_delay(le
     assert report.delay == 0 and 1.0 <= report.lag < 1.5, report
     assert "not taken for an acquisition delay" in report.reason
     assert "delay=1, --known-delay 1" in report.reason
+    # (refusing shifted records, it does not refuse this one: it names it)
+    strict = IterativeLearning(learner.compensation, learner.residuals, delay="refuse")
+    first = strict.step(strict.init(), plant.measure(strict.init().input)).reports[-1]
+    assert first.delay == 0 and "not taken for an acquisition delay" in first.reason
     for _ in range(15):
         state = learner.step(state, plant.measure(state.input))
         if state.stopped:
