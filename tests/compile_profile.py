@@ -2,7 +2,7 @@
 the persistent cache) per test, from JAX's own duration events (``jax.monitoring``).
 
     JAXHYST_TEST_PROFILE=DIR python -m pytest …     # each process writes DIR/<worker>.json
-    python tests/compile_profile.py DIR [N]         # totals and the N costliest tests
+    python tests/compile_profile.py DIR [N]         # totals, the N costliest tests and programs
 
 Seconds are per process (with ``-n 2``, two workers' sums); "compile" includes the
 programs loaded from the cache ("load" is that part), so compile − load is compiling.
@@ -35,13 +35,20 @@ class Profile:
 
         self.directory, self.current = directory, "<outside tests>"
         self.seconds = collections.defaultdict(collections.Counter)
+        #: program name → [seconds compiling or loading, programs, tests that compiled it]
+        self.programs: dict = collections.defaultdict(lambda: [0.0, 0, set()])
         monitoring.register_event_duration_secs_listener(self._event)
 
-    def _event(self, event, duration, **_):
+    def _event(self, event, duration, fun_name=None, **_):
         kind = EVENTS.get(event)
         if kind:
             self.seconds[self.current][kind] += duration
             self.seconds[self.current][kind + "_n"] += 1
+        if kind == "compile" and fun_name:
+            entry = self.programs[fun_name]
+            entry[0] += duration
+            entry[1] += 1
+            entry[2].add(self.current)
 
     @pytest.hookimpl(hookwrapper=True)
     def pytest_runtest_protocol(self, item, nextitem):
@@ -57,6 +64,9 @@ class Profile:
         name = os.environ.get("PYTEST_XDIST_WORKER", "main")
         with open(os.path.join(self.directory, f"{name}.json"), "w") as fh:
             json.dump(self.seconds, fh, indent=0)
+        with open(os.path.join(self.directory, f"{name}.programs"), "w") as fh:
+            json.dump({k: [s, n, sorted(t)] for k, (s, n, t) in self.programs.items()}, fh,
+                      indent=0)
 
 
 def summary(directory: str, top: int = 15) -> str:
@@ -77,6 +87,18 @@ def summary(directory: str, top: int = 15) -> str:
     for test, s in sorted(tests.items(), key=lambda kv: -kv[1]["wall"])[:top]:
         lines.append(f"{s['wall']:7.1f} s  trace {s['trace']:5.1f}  lower {s['lower']:5.1f}  "
                      f"compile {s['compile']:5.1f} (load {s['load']:4.1f})  {test}")
+    programs: dict = collections.defaultdict(lambda: [0.0, 0, set()])
+    for name in sorted(os.listdir(directory)):
+        if name.endswith(".programs"):
+            with open(os.path.join(directory, name)) as fh:
+                for fun, (s, n, t) in json.load(fh).items():
+                    programs[fun][0] += s
+                    programs[fun][1] += n
+                    programs[fun][2].update(t)
+    if programs:
+        lines.append("programs by name (compiling or loading, how many, in how many tests):")
+        for fun, (s, n, t) in sorted(programs.items(), key=lambda kv: -kv[1][0])[:top]:
+            lines.append(f"{s:7.1f} s  {n:5d}  {len(t):4d}  {fun}")
     return "\n".join(lines)
 
 
