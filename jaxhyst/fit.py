@@ -39,7 +39,8 @@ def attach_report(result, problem, report: bool | str = True):
     if not report:
         return result
     try:
-        rep = identifiability(problem, result.params, profile=report == "profile")
+        rep = identifiability(problem, result.params, profile=report == "profile",
+                              linearization=result.linearization)
         if rep.lower_cost and result.success:
             result, rep = _continued(result, problem, rep)
         return result.with_report(rep)
@@ -75,11 +76,13 @@ def _continued(result, problem, rep):
         wall_time=float(result.wall_time) + float(more.wall_time),
         extra={**result.extra, "convergence_check": check,
                "earlier_convergence_check": result.extra.get("convergence_check")}), problem)
-    return merged, identifiability(problem, merged.params, profile=True)
+    return merged, identifiability(problem, merged.params, profile=True,
+                                   linearization=merged.linearization)
 
 
-#: Problem structures (`_structure`) whose report programs this process has compiled.
-_COMPILED: set = set()
+#: Problem structure (`_structure`) → the report programs this process has compiled for
+#: it ("sampling": the model's error at the data's sampling; "jacobian": the report's).
+_COMPILED: dict = {}
 
 
 def _structure(problem):
@@ -97,38 +100,60 @@ def _structure(problem):
     return key
 
 
-def _compile_report_meanwhile(problem, report):
+def _compile_report_meanwhile(problem, report, linearized: bool = False):
     """Compile the programs every report runs (the model's error at the data's sampling,
     the whitened Jacobian: they depend on the problem's shapes, not on the fit) in a
     background thread (`jaxhyst._background`), at the box's centre, so that they compile
     while the fit's own programs compile and run instead of after them — once per problem
-    structure in a process (they are evaluated there, which a second fit need not pay)."""
+    structure in a process (they are evaluated there, which a second fit need not pay).
+    ``linearized``: the fit's solver leaves its Jacobian at the end
+    (`IdentificationResult.linearization`), which the report uses: its own is not
+    compiled."""
     import numpy as np
 
     if not report:
         return None
     key = _structure(problem)
-    if key is not None and key in _COMPILED:  # (compiled already: nothing to gain)
+    needed = {"sampling"} if linearized else {"sampling", "jacobian"}
+    done = _COMPILED.get(key, set()) if key is not None else set()
+    if needed <= done:  # (compiled already: nothing to gain)
         return None
 
     def work():
         # (the box's centre, u = 0.5 at z = 0, by the program every fit's summary runs:
         # not op by op, which compiles a dozen tiny programs on this thread's path)
         values, centre = point_of(problem.space, np.zeros(problem.space.n_free))
-        sampling_error(problem, centre)
-        compile_report(problem, values)
+        if "sampling" not in done:
+            sampling_error(problem, centre)
+        if "jacobian" in needed - done:
+            compile_report(problem, values)
         if key is not None:
-            _COMPILED.add(key)
+            _COMPILED[key] = done | needed
         # (not the profile check's re-fits: they run only where the fit is not exact,
         # which is not known before it ends; compiled for nothing, they slow the fit)
 
     return meanwhile(work)
 
 
-def _with_report(fn):
+def _linearized(args, kwargs) -> bool:
+    """Whether `solve` / `multistart` called with these arguments (after the problem)
+    ends with its solver's Jacobian (a Gauss–Newton-family solver)."""
+    import optimistix as optx
+
+    from .identify.solvers import make_solver
+
+    solver = kwargs.get("solver", args[1] if len(args) > 1 else "lm")
+    try:
+        made = make_solver(solver)
+    except (ValueError, TypeError):  # (the fit itself says what is wrong)
+        return False
+    return isinstance(made, optx.AbstractGaussNewton)
+
+
+def _with_report(fn, linearized=lambda args, kwargs: False):
     @functools.wraps(fn)
     def wrapped(problem, *args, report: bool = True, **kwargs):
-        background = _compile_report_meanwhile(problem, report)
+        background = _compile_report_meanwhile(problem, report, linearized(args, kwargs))
         try:
             result = fn(problem, *args, **kwargs)
         finally:
@@ -144,6 +169,6 @@ def _with_report(fn):
     return wrapped
 
 
-solve = _with_report(identify.solve)
-multistart = _with_report(identify.multistart)
+solve = _with_report(identify.solve, _linearized)
+multistart = _with_report(identify.multistart, _linearized)
 run_hybrid = _with_report(identify.run_hybrid)

@@ -181,11 +181,13 @@ def test_loops_of_other_lengths_padded_alike_share_a_program_and_cost_what_they_
 
 
 def test_a_fits_report_compiles_in_a_thread_of_its_own_while_the_fit_runs():
-    """`jaxhyst.solve` & co. compile the report's programs (its Jacobian) in a background
-    thread while the fit compiles and runs: they are compiled there, counted by
-    ``jax.log_compiles`` like the caller's, not compiled again for the report, no thread
-    is left behind, the report is the one made afterwards in the caller's thread, and a
-    second fit of the same structure starts none."""
+    """`jaxhyst.solve` & co. compile the report's programs (the model's error at the
+    data's sampling) in a background thread while the fit compiles and runs: they are
+    compiled there, counted by ``jax.log_compiles`` like the caller's, not compiled again
+    for the report, no thread is left behind, the report is the one made afterwards in
+    the caller's thread. The report's Jacobian is the Levenberg–Marquardt solver's last
+    one: no program differentiates the model for it (a minimiser's fit compiles that in
+    the thread). A second fit of the same structure starts no thread."""
     from jaxhyst.identify.joint import NO_ACTUATOR
 
     d = jh.sinusoidal_field(1.0, 90.0, 0.0, samples_per_period=38)  # (a shape of its own)
@@ -197,10 +199,20 @@ def test_a_fits_report_compiles_in_a_thread_of_its_own_while_the_fit_runs():
     start = SOFT.replace(a=40.0, k=15.0, c=0.4)
     with counting() as compiled:
         res = jh.solve(problem, start, max_steps=30, report="profile")
-    assert compiled.threads.get("jit(whitened_log_jacobian)") == {
-        "jaxhyst-compile-meanwhile"}, compiled.threads
+    assert "jit(whitened_log_jacobian)" not in compiled.threads, compiled.threads
+    assert compiled.threads.get("jit(_predictions)") == {"jaxhyst-compile-meanwhile"}, \
+        compiled.threads
     assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-meanwhile"]
     again = jh.fit.attach_report(res, problem, "profile").report
     assert again.intervals == res.report.intervals and again.names == res.report.names
+    # the same report as from the model differentiated again
+    fresh = jh.analysis.identifiability(problem, res.params)
+    for name in fresh.names:
+        assert res.report.std_errors[name] == pytest.approx(fresh.std_errors[name], rel=1e-9)
+        assert res.report.intervals[name] == pytest.approx(fresh.intervals[name], rel=1e-9)
+    # which fits leave their solver's Jacobian (a minimiser's does not: the report's own
+    # is compiled in that thread instead)
+    assert jh.fit._linearized((start,), {}) and jh.fit._linearized((start, "dogleg"), {})
+    assert not jh.fit._linearized((start,), {"solver": "bfgs"})
     # once per problem structure: a second fit of these data starts no thread
-    assert jh.fit._compile_report_meanwhile(problem, True) is None
+    assert jh.fit._compile_report_meanwhile(problem, True, linearized=True) is None

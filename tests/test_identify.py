@@ -325,20 +325,29 @@ def test_stepped_local_solve_iterates_like_optimistix_and_stops_when_interrupted
     s = make_solver(solver)
     ref = eqx.filter_jit(jax.vmap(lambda z: _optimistix_solve(problem, s, z, 8)))(z0)
     traced = eqx.filter_jit(jax.vmap(lambda z: solve_traced(problem, s, z, 8)))(z0)
-    (z, results, steps, cost, _, residuals), how = stepped_solve(problem, s, z0, 8,
-                                                                 NoProgressMeter(), "test")
+    (z, results, steps, cost, _, residuals), how, linear = stepped_solve(
+        problem, s, z0, 8, NoProgressMeter(), "test")
     assert how == "done" and np.asarray(steps).tolist() == [8, 8]
     assert np.asarray(traced[2]).tolist() == np.asarray(ref[2]).tolist() == [8, 8]
     for zs in (z, traced[0]):
         np.testing.assert_allclose(np.asarray(zs), np.asarray(ref[0]), rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.asarray(cost), np.asarray(traced[3]), rtol=1e-9)
-    # the residuals returned with the end point are those of the end point
+    # the residuals returned with the end point are those of the end point, and so is
+    # the linearization the solver leaves (the report's Jacobian)
+    from jaxhyst.identify._objective import _jacobian_and_value
+
     for i in range(2):
         _, at_end = evaluate_at(problem, z[i])
         for r, e in zip(residuals, at_end, strict=True):
             e = np.asarray(e)
             np.testing.assert_allclose(np.asarray(r[i]), e, rtol=0,
                                        atol=1e-12 * np.max(np.abs(e)))
+        if linear is None:  # (a minimiser's solve leaves none)
+            assert solver == "bfgs"
+            continue
+        J, r = (np.asarray(a) for a in _jacobian_and_value(problem.residuals, z[i], None))
+        np.testing.assert_allclose(linear[1][i], r, rtol=0, atol=1e-12 * np.max(np.abs(r)))
+        np.testing.assert_allclose(linear[0][i], J, rtol=0, atol=1e-12 * np.max(np.abs(J)))
     # the same outcome (the step limit), as Optimistix reports it
     expected = jh.RESULTS.promote(ref[1])
     assert list(outcome_name(results)) == list(outcome_name(expected)) \

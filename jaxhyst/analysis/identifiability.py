@@ -63,8 +63,6 @@ def whitened_log_jacobian(problem, x0, scale):
     along as jacfwd's aux). Traceable: used jitted here and inside the vmapped replicate
     fits."""
     space = problem.space
-    groups = problem.groups
-    n = x0.shape[0]
 
     def raw(dx):
         r = problem.group_residuals(space.params_from_free(x0 + dx * scale))
@@ -72,6 +70,15 @@ def whitened_log_jacobian(problem, x0, scale):
         return flat, flat
 
     J, e = jax.jacfwd(raw, has_aux=True)(jnp.zeros_like(x0))
+    return whiten(problem, J, e, x0, scale)
+
+
+def whiten(problem, J, e, x0, scale):
+    """`whitened_log_jacobian` from the Jacobian J (N, n) of the groups' residuals e (N,)
+    (their units, concatenated) with respect to dx at x = x0 + dx·scale. Traceable."""
+    groups = problem.groups
+    space = problem.space
+    n = x0.shape[0]
     sizes = np.array([g.size for g in groups])
     N = int(sizes.sum())
     bounds = np.concatenate([[0], np.cumsum(sizes)])
@@ -103,6 +110,27 @@ def whitened_log_jacobian(problem, x0, scale):
 
 
 _log_jacobian = eqx.filter_jit(whitened_log_jacobian)
+_whiten = eqx.filter_jit(whiten)
+
+
+def _whitened(problem, values, scale, linearization):
+    """(Jw, ew, σ) of `whitened_log_jacobian` at the free ``values``: from the fit's own
+    ``linearization`` (`IdentificationResult.linearization`) where it was made at these
+    values — no simulation, nothing compiled beyond the whitening — else by jacfwd."""
+    if linearization is not None:
+        at, J, r = (np.asarray(a, dtype=float) for a in linearization)
+        groups = problem.groups
+        sizes = [int(g.size) for g in groups]
+        N = sum(sizes)
+        if (at.shape == values.shape and np.array_equal(at, values)
+                and J.shape == (N + len(problem.priors), values.size) and r.shape == (J.shape[0],)):
+            per_row = np.repeat([float(g.normaliser) for g in groups], sizes)
+            # (the residual vector's rows are each group's residuals over its normaliser,
+            # then the priors' rows, which the whitening adds itself)
+            return _whiten(problem, jnp.asarray(J[:N] * per_row[:, None] * scale[None, :]),
+                           jnp.asarray(r[:N] * per_row), jnp.asarray(values),
+                           jnp.asarray(scale))
+    return _log_jacobian(problem, jnp.asarray(values), jnp.asarray(scale))
 
 
 def compile_report(problem, values) -> None:
@@ -114,7 +142,7 @@ def compile_report(problem, values) -> None:
 
 
 def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float = 0.5,
-                    profile: bool = True) -> IdentifiabilityReport:
+                    profile: bool = True, linearization=None) -> IdentifiabilityReport:
     """Identifiability report of ``problem``'s free parameters at ``params`` (see the module
     docstring).
 
@@ -129,6 +157,9 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
       ends where the quadratic approximation fails (`jaxhyst.analysis.profile_intervals`:
       a few vmapped batches of constrained re-fits; default). False: the linear
       intervals alone (the report a fit attaches by default: no re-fits).
+    - ``linearization``: a fit's `IdentificationResult.linearization` at ``params``: its
+      Jacobian is used instead of differentiating the model again (ignored where it was
+      made at other values).
 
     The residuals are tested for misspecification (`jaxhyst.analysis.misspecification`):
     where the model cannot explain the data the report says so and its intervals are
@@ -140,8 +171,7 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     width = np.asarray(space.upper) - np.asarray(space.lower)
     # signed θ0, so that x = dθ/θ0 = d log|θ| also for negative θ (α̃)
     scale = np.where(np.abs(values) > 1e-9 * width, values, np.where(width > 0, width, 1.0))
-    J, e, sigma = (np.asarray(a) for a in _log_jacobian(problem, jnp.asarray(values),
-                                                         jnp.asarray(scale)))
+    J, e, sigma = (np.asarray(a) for a in _whitened(problem, values, scale, linearization))
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(e))):
         raise ValueError("The model output or its Jacobian is not finite at these parameters; "
                          "the identifiability analysis needs a point where the model runs.")

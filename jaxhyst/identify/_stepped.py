@@ -33,7 +33,7 @@ from ..model.simulate import plain_vmap
 from ._objective import objective
 from .problem import AbstractProblem
 from .result import RESULTS
-from .solvers import accepted_residuals, final_step_size
+from .solvers import accepted_jacobian, accepted_residuals, final_step_size
 
 _TAGS = frozenset()
 
@@ -81,10 +81,12 @@ def advance(problem: AbstractProblem, solver, static, carry, n, max_steps):
 
 
 def finish(problem: AbstractProblem, solver, static, carry):
-    """(y, result, steps, cost, final step size, group residuals, known) at the end of a
-    solve. A Gauss–Newton state holds the residual vector at its accepted point, so no
-    simulation is run here for those; before the first accepted step the state holds
-    placeholder zeros (``known`` False) and the caller evaluates the end point."""
+    """(y, result, steps, cost, final step size, group residuals, known, linearization)
+    at the end of a solve. A Gauss–Newton state holds the residual vector at its
+    accepted point, so no simulation is run here for those; before the first accepted
+    step the state holds placeholder zeros (``known`` False) and the caller evaluates
+    the end point. ``linearization``: (∂r/∂z (R, n), r (R,)) at y from that state (None
+    for other solvers; meaningful where ``known``)."""
     run, fn, options = objective(problem, solver)
     y, steps, dynamic, term, result = carry
     state = eqx.combine(static, dynamic)
@@ -95,11 +97,13 @@ def finish(problem: AbstractProblem, solver, static, carry):
     if held is None:
         cost, residuals = problem.cost(y), problem.group_residuals(problem.space.params_from_z(y))
         residuals, known = tuple(jnp.ravel(e) for e in residuals), jnp.array(True)
+        linearization = None
     else:
         r, accepted = held
         cost, residuals, known = jnp.sum(r**2), problem.groups_from_residuals(r), accepted > 0
+        linearization = (accepted_jacobian(run, state), r)
     return (y, RESULTS.promote(result), steps, cost, final_step_size(run, state), residuals,
-            known)
+            known, linearization)
 
 
 def solve_traced(problem: AbstractProblem, solver, z0, max_steps):
@@ -107,7 +111,7 @@ def solve_traced(problem: AbstractProblem, solver, z0, max_steps):
     arrays only, so that it vmaps."""
     carry, static = init(problem, solver, z0)
     carry = advance(problem, solver, static, carry, max_steps, max_steps)
-    y, result, steps, cost, step_size, _, known = finish(problem, solver, static, carry)
+    y, result, steps, cost, step_size, _, known, _ = finish(problem, solver, static, carry)
     cost = jnp.where(known, cost, problem.cost(y))  # (a cond of it does not vmap)
     return y, result, steps, cost, step_size
 
@@ -223,6 +227,7 @@ class SteppedSolve:
         with self.tracing():
             self.state, self.static = _init_batch(problem, solver, np.asarray(z0s))
         self.chunk, self.costs, self.started = 1, None, time.perf_counter()
+        self.linearizations = None
 
     def done(self, carry) -> bool:
         # (host scalars: jnp.asarray of one compiles a program of its own on first use)
@@ -267,11 +272,17 @@ class SteppedSolve:
 
     def outputs(self, carry):
         """(z, results, steps, cost, final step size, group residuals) of every solve, as
-        host values (``results`` a batch of `RESULTS`)."""
+        host values (``results`` a batch of `RESULTS`). ``self.linearizations`` is then
+        (∂r/∂z (K, R, n), r (K, R)) at each z, NaN for a solve that accepted no step, or
+        None (a solver outside the Gauss–Newton family)."""
         # on the host at once (indexing device arrays compiles a small program per shape)
         with self.tracing():
-            *out, known = jax.device_get(_finish_batch(self.problem, self.solver,
-                                                       self.static, carry))
+            *out, known, linear = jax.device_get(_finish_batch(self.problem, self.solver,
+                                                               self.static, carry))
+        if linear is not None:
+            lost = ~np.asarray(known)
+            self.linearizations = tuple(np.where(lost.reshape((-1,) + (1,) * (a.ndim - 1)),
+                                                 np.nan, a) for a in linear)
         if self.overtaken is not None:
             out[1] = jax.device_get(_mark_overtaken(jnp.asarray(self.overtaken), out[1]))
         missing = np.flatnonzero(~np.asarray(known))  # solves that accepted no step

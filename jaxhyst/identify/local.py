@@ -18,7 +18,7 @@ from .problem import AbstractProblem, check_problem
 from .result import RESULTS, IdentificationResult, member, outcome_name
 from .solvers import make_solver, solver_name
 from .space import z_from_u
-from .summary import point_of, summarize
+from .summary import point_of, summarize, with_linearization
 
 
 def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int, meter,
@@ -26,7 +26,8 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int, meter,
     """Solve from each start of ``z0s`` (K, n) in one vmapped batch through the driver,
     reporting to ``meter``: ((z, results, steps, cost, final step size, group residuals)
     batched over K as host values, how the loop ended: ``"done"``, ``"stopped"`` or
-    ``"keyboard"``). A stopped solve's results are `RESULTS.interrupted`."""
+    ``"keyboard"``, the solver's linearizations at each z: `SteppedSolve.outputs`). A
+    stopped solve's results are `RESULTS.interrupted`."""
     run = SteppedSolve(problem, solver, z0s, max_steps,
                        with_cost=not isinstance(meter, NoProgressMeter))
     meter_state = meter.init(label, int(max_steps))
@@ -34,6 +35,7 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int, meter,
                                     describe=run.describe, meter=meter,
                                     meter_state=meter_state)
     out = run.outputs(carry)
+    linear = run.linearizations
     overtaken = 0 if run.overtaken is None else int(np.sum(run.overtaken))
     if how != "done":
         stopped = RESULTS.where(jnp.asarray(True), RESULTS.interrupted, out[1])
@@ -48,7 +50,7 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int, meter,
             f"{costs[best]:.4e} (the longest start {int(steps.max())} steps"
             + (f"; {overtaken} stopped there, unable to catch up)" if overtaken else ")"))
     meter.close(meter_state, text)
-    return out, how
+    return out, how, linear
 
 
 def start_z(problem: AbstractProblem, start) -> jax.Array:
@@ -134,12 +136,14 @@ def solve(problem: AbstractProblem, start, solver="lm", max_steps: int = 200,
         raise ValueError("solve takes one start; use multistart for a batch of starts.")
     solver_obj = make_solver(solver, rtol, atol)
     t0 = time.perf_counter()
-    (z, results, steps, cost, _, residuals), how = stepped_solve(
+    (z, results, steps, cost, _, residuals), how, linear = stepped_solve(
         problem, solver_obj, np.asarray(z0)[None], max_steps,
         progress_meter(progress, every=0), solver_name(solver))
     result = summarize(problem, z[0], steps[0], member(results, 0), solver_name(solver),
                        time.perf_counter() - t0,
                        evaluated=(cost[0], [r[0] for r in residuals]))
+    result = with_linearization(result, problem.space, z[0],
+                                None if linear is None else [a[0] for a in linear])
     return finished(result, how)
 
 
@@ -167,7 +171,7 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
     solver_obj = make_solver(solver, rtol, atol)
     t0 = time.perf_counter()
     label = f"{solver_name(solver)} x{z0s.shape[0]}"
-    (zs, results, steps, costs, _, residuals), how = stepped_solve(
+    (zs, results, steps, costs, _, residuals), how, linear = stepped_solve(
         problem, solver_obj, z0s, max_steps, progress_meter(progress, every=0), label)
     costs = np.asarray(costs)
     names = np.atleast_1d(outcome_name(results))
@@ -183,4 +187,6 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
                        f"{solver_name(solver)} x{len(costs)}", time.perf_counter() - t0,
                        extra={"starts": table, "best_index": best},
                        evaluated=(costs[best], [r[best] for r in residuals]))
+    result = with_linearization(result, space, zs[best],
+                                None if linear is None else [a[best] for a in linear])
     return finished(result, how)

@@ -146,6 +146,10 @@ class IdentificationResult:
       ``substeps``, relative to the output's size, at ``params`` (estimated where the
       drive is coarse, else None);
       ``far_from_data`` and ``warnings`` (properties) say what else needs attention.
+    - ``linearization``: (free values (n,), J (R, n), r (R,)): the residual vector of
+      `AbstractProblem.residuals_params` at those values and its Jacobian with respect to
+      them (SI), as a Gauss–Newton-family solver's last linearization left them, or None;
+      the report uses it instead of differentiating the model again. Not saved.
     """
 
     params: object
@@ -167,6 +171,7 @@ class IdentificationResult:
     at_bound: MappingProxyType = field(default_factory=lambda: _frozen({}))
     sampling_error: float | None = None
     substeps: int | None = None
+    linearization: object = field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
         object.__setattr__(self, "outcome", as_result(self.outcome))

@@ -360,6 +360,16 @@ def accepted_residuals(solver, state):
     return state.f_info.residual, state.num_accepted_steps
 
 
+def accepted_jacobian(solver, state):
+    """The Jacobian ∂r/∂z, shape (R, n), at the accepted point of the state of a solve by
+    ``solver`` (as run) of the Gauss–Newton family — the matrix its last linearization
+    holds (`jaxhyst.identify._objective.jacobian_linearized`), applied to a basis: no
+    simulation — or None for another kind of solver."""
+    if not isinstance(_inner(solver), optx.AbstractGaussNewton):
+        return None
+    return state.f_info.jac.as_matrix()
+
+
 def final_step_size(solver, state):
     """The damping (1/h) or radius a finished solve by ``solver`` (as run) ended with,
     for the solvers a hybrid carries it for (`with_initial_step_size`); NaN otherwise."""

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import numpy as np
 
@@ -66,3 +68,20 @@ def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: fl
         sse=sse, output=problem.output, extra=extra or {},
         at_bound=at_bound,
     )  # fmt: skip
+
+
+def with_linearization(result: IdentificationResult, space, z, linear) -> IdentificationResult:
+    """``result`` (at the solver coordinate ``z``) with the solver's linearization there,
+    ``linear`` = (∂r/∂z (R, n), r (R,)) or None, carried to its free values x
+    (``IdentificationResult.linearization``): ∂r/∂x = ∂r/∂z / (dx/dz), x = lower +
+    (upper − lower)·(1 + sin z)/2 coordinate by coordinate. Left out where it is not
+    finite or where dx/dz is 0."""
+    if linear is None:
+        return result
+    J, r = (np.asarray(a, dtype=float) for a in linear)
+    z = np.asarray(z, dtype=float)
+    dxdz = 0.5 * (np.asarray(space.upper, float) - np.asarray(space.lower, float)) * np.cos(z)
+    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r)) and np.all(dxdz != 0)):
+        return result
+    return dataclasses.replace(result, linearization=(np.asarray(result.values, float),
+                                                      J / dxdz, r))
