@@ -1,7 +1,8 @@
 """Identification with the identifiability report attached: `solve`, `multistart` and
 `run_hybrid` of `jaxhyst.identify`, each followed by `jaxhyst.analysis.identifiability`
-at the result (one jacfwd of the model). This module sits above both packages, so that
-`identify` never imports `analysis`."""
+at the result (with the solver's last Jacobian where it left one, else one jacfwd of the
+model). This module sits above both packages, so that `identify` never imports
+`analysis`."""
 
 from __future__ import annotations
 

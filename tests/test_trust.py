@@ -389,7 +389,8 @@ def test_linearity_is_checked_along_the_constrained_path_at_a_bound(noisy):
     data were made with), seven parameters free, intervals that the box cuts: the
     bound-aware intervals keep their construction (the linearised profile with c held,
     Feldman–Cousins thresholds) and nothing is called NOT LINEAR. (A straight-line check
-    used to step off that path: every interval was flagged, by factors up to 1e5.)"""
+    used to step off that path: every interval was flagged, by factors up to 1e5.) The
+    solver's last Jacobian gives the same report there."""
     from jaxhyst.analysis import identifiability
 
     problem, sd = noisy
@@ -405,6 +406,14 @@ def test_linearity_is_checked_along_the_constrained_path_at_a_bound(noisy):
     assert "c" not in rep.linearity and rep.nonlinear() == (), rep.linearity
     assert rep.interval_methods["c"] == "one-sided"
     assert set(rep.interval_methods.values()) <= {"one-sided", "bound-aware", "near-bound"}
+    # the same report from the solver's last Jacobian, carried to the free values where
+    # the sine map of c's coordinate is (nearly) flat
+    assert fit.linearization is not None
+    carried = identifiability(free7, fit.params, linearization=fit.linearization)
+    assert carried.interval_methods == rep.interval_methods
+    for name in rep.names:
+        assert carried.std_errors[name] == pytest.approx(rep.std_errors[name], rel=1e-7)
+        assert carried.intervals[name] == pytest.approx(rep.intervals[name], rel=1e-9)
 
 
 def test_a_model_that_cannot_explain_its_data_is_named_and_its_intervals_widened():
