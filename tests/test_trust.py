@@ -414,6 +414,11 @@ def test_linearity_is_checked_along_the_constrained_path_at_a_bound(noisy):
     for name in rep.names:
         assert carried.std_errors[name] == pytest.approx(rep.std_errors[name], rel=1e-7)
         assert carried.intervals[name] == pytest.approx(rep.intervals[name], rel=1e-9)
+    # … and only for the problem it was made of: other data at the same values get their
+    # own Jacobian
+    other = eqx.tree_at(lambda q: q.data, free7, free7.data * 1.01)
+    assert identifiability(other, fit.params, linearization=fit.linearization).std_errors \
+        == identifiability(other, fit.params).std_errors
 
 
 def test_a_model_that_cannot_explain_its_data_is_named_and_its_intervals_widened():

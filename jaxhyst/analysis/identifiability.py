@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..identify.problem import content_digest
 from ..identify.result import bound_status
 from ..identify.summary import free_values_of
 from ..params import NAMES
@@ -114,22 +115,19 @@ _whiten = eqx.filter_jit(whiten)
 
 
 def _whitened(problem, values, scale, linearization):
-    """(Jw, ew, σ) of `whitened_log_jacobian` at the free ``values``: from the fit's own
-    ``linearization`` (`IdentificationResult.linearization`) where it was made at these
-    values — no simulation, nothing compiled beyond the whitening — else by jacfwd."""
+    """(Jw, ew, σ) of `whitened_log_jacobian` at the free ``values``: from a fit's own
+    ``linearization`` (`IdentificationResult.linearization`) where it was made of this
+    problem at these values — no simulation, nothing compiled beyond the whitening —
+    else by jacfwd."""
     if linearization is not None:
-        at, J, r = (np.asarray(a, dtype=float) for a in linearization)
-        groups = problem.groups
-        sizes = [int(g.size) for g in groups]
-        N = sum(sizes)
+        at, J, e, digest = linearization
+        at, J, e = (np.asarray(a, dtype=float) for a in (at, J, e))
         if (at.shape == values.shape and np.array_equal(at, values)
-                and J.shape == (N + len(problem.priors), values.size) and r.shape == (J.shape[0],)):
-            per_row = np.repeat([float(g.normaliser) for g in groups], sizes)
-            # (the residual vector's rows are each group's residuals over its normaliser,
-            # then the priors' rows, which the whitening adds itself)
-            return _whiten(problem, jnp.asarray(J[:N] * per_row[:, None] * scale[None, :]),
-                           jnp.asarray(r[:N] * per_row), jnp.asarray(values),
-                           jnp.asarray(scale))
+                and J.shape == (e.size, values.size)
+                and e.size == sum(int(g.size) for g in problem.groups)
+                and digest == content_digest(problem)):
+            return _whiten(problem, jnp.asarray(J * scale[None, :]), jnp.asarray(e),
+                           jnp.asarray(values), jnp.asarray(scale))
     return _log_jacobian(problem, jnp.asarray(values), jnp.asarray(scale))
 
 
@@ -159,7 +157,7 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
       intervals alone (the report a fit attaches by default: no re-fits).
     - ``linearization``: a fit's `IdentificationResult.linearization` at ``params``: its
       Jacobian is used instead of differentiating the model again (ignored where it was
-      made at other values).
+      made of another problem or at other values).
 
     The residuals are tested for misspecification (`jaxhyst.analysis.misspecification`):
     where the model cannot explain the data the report says so and its intervals are

@@ -142,7 +142,7 @@ def solve(problem: AbstractProblem, start, solver="lm", max_steps: int = 200,
     result = summarize(problem, z[0], steps[0], member(results, 0), solver_name(solver),
                        time.perf_counter() - t0,
                        evaluated=(cost[0], [r[0] for r in residuals]))
-    result = with_linearization(result, problem.space, z[0],
+    result = with_linearization(result, problem, z[0],
                                 None if linear is None else [a[0] for a in linear])
     return finished(result, how)
 
@@ -187,6 +187,6 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
                        f"{solver_name(solver)} x{len(costs)}", time.perf_counter() - t0,
                        extra={"starts": table, "best_index": best},
                        evaluated=(costs[best], [r[best] for r in residuals]))
-    result = with_linearization(result, space, zs[best],
+    result = with_linearization(result, problem, zs[best],
                                 None if linear is None else [a[best] for a in linear])
     return finished(result, how)

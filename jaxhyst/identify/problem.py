@@ -161,6 +161,25 @@ def check_problem(problem, what: str = "problem") -> None:
                         "jaxhyst.ResidualProblem from your residual function.")
 
 
+def content_digest(problem) -> str:
+    """A digest of everything ``problem`` holds (its tree structure, every array's bytes,
+    every other leaf's repr): equal for the same problem, different where its data, drive,
+    box or settings differ — what a fit's `IdentificationResult.linearization` is tied
+    to."""
+    import hashlib
+
+    leaves, treedef = jax.tree_util.tree_flatten(problem)
+    h = hashlib.sha1(str(treedef).encode())
+    for leaf in leaves:
+        if isinstance(leaf, (np.ndarray, jax.Array)):
+            a = np.asarray(leaf)
+            h.update(f"{a.dtype}{a.shape}".encode())
+            h.update(np.ascontiguousarray(a).tobytes())
+        else:
+            h.update(repr(leaf).encode())
+    return h.hexdigest()
+
+
 @eqx.filter_jit
 def cost_at(problem, z) -> jax.Array:
     """``problem.cost(z)`` by one compiled program, for host code that needs a cost at a

@@ -146,10 +146,12 @@ class IdentificationResult:
       ``substeps``, relative to the output's size, at ``params`` (estimated where the
       drive is coarse, else None);
       ``far_from_data`` and ``warnings`` (properties) say what else needs attention.
-    - ``linearization``: (free values (n,), J (R, n), r (R,)): the residual vector of
-      `AbstractProblem.residuals_params` at those values and its Jacobian with respect to
-      them (SI), as a Gauss–Newton-family solver's last linearization left them, or None;
-      the report uses it instead of differentiating the model again. Not saved.
+    - ``linearization``: (free values (n,), J (N, n), e (N,), digest): the residual
+      groups' residuals (model − data in their units, concatenated) at those values and
+      their Jacobian with respect to them (SI), as a Gauss–Newton-family solver's last
+      linearization left them, and the fitted problem's `content_digest`; or None. The
+      report of that problem at those values uses it instead of differentiating the
+      model again. Not saved.
     """
 
     params: object

@@ -8,7 +8,7 @@ import equinox as eqx
 import numpy as np
 
 from ._stepped import evaluate_at
-from .problem import AbstractProblem
+from .problem import AbstractProblem, content_digest
 from .result import RESULTS, IdentificationResult, as_result, bound_status, outcome_name
 from .space import u_from_z
 
@@ -70,18 +70,27 @@ def summarize(problem: AbstractProblem, z, steps, outcome, solver: str, wall: fl
     )  # fmt: skip
 
 
-def with_linearization(result: IdentificationResult, space, z, linear) -> IdentificationResult:
-    """``result`` (at the solver coordinate ``z``) with the solver's linearization there,
-    ``linear`` = (∂r/∂z (R, n), r (R,)) or None, carried to its free values x
-    (``IdentificationResult.linearization``): ∂r/∂x = ∂r/∂z / (dx/dz), x = lower +
-    (upper − lower)·(1 + sin z)/2 coordinate by coordinate. Left out where it is not
+def with_linearization(result: IdentificationResult, problem: AbstractProblem, z,
+                       linear) -> IdentificationResult:
+    """``result`` (at the solver coordinate ``z`` of ``problem``) with the solver's
+    linearization there, ``linear`` = (∂r/∂z (R, n), r (R,)) of the residual vector of
+    `AbstractProblem.residuals_params`, or None, carried to the groups' residuals (their
+    units) and the free values x (``IdentificationResult.linearization``): rows times
+    their group's normaliser, the priors' rows dropped, columns over dx/dz with x = lower
+    + (upper − lower)·(1 + sin z)/2 coordinate by coordinate. Left out where it is not
     finite or where dx/dz is 0."""
     if linear is None:
         return result
     J, r = (np.asarray(a, dtype=float) for a in linear)
+    space, groups = problem.space, problem.groups
+    sizes = [int(g.size) for g in groups]
+    N = sum(sizes)
     z = np.asarray(z, dtype=float)
     dxdz = 0.5 * (np.asarray(space.upper, float) - np.asarray(space.lower, float)) * np.cos(z)
-    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r)) and np.all(dxdz != 0)):
+    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r)) and np.all(dxdz != 0)
+            and J.shape == (r.size, z.size) and r.size >= N):
         return result
-    return dataclasses.replace(result, linearization=(np.asarray(result.values, float),
-                                                      J / dxdz, r))
+    per_row = np.repeat([float(g.normaliser) for g in groups], sizes)
+    return dataclasses.replace(result, linearization=(
+        np.asarray(result.values, float), J[:N] * per_row[:, None] / dxdz, r[:N] * per_row,
+        content_digest(problem)))
