@@ -117,12 +117,16 @@ def main():
             for _ in range(10):
                 y = evaluate(measure, state.input)
                 errors.append(rms_error(y, ref.displacement, ref.scale))
+                if state.stopped:
+                    break
                 t0 = time.perf_counter()
                 state = learner.step(state, y)
                 seconds.append(time.perf_counter() - t0)
             print(f"- {f} Hz {name}: matched model {matched.error:.2g}; per iteration "
                   + " ".join(f"{e:.2g}" for e in errors)
-                  + f" (a step {np.median(seconds[1:]):.3f} s)", flush=True)
+                  + f" (a step {np.median(seconds[1:]):.3f} s); "
+                  + (f"stopped: {state.stopped.split(';')[0]}" if state.stopped else
+                     "going on"), flush=True)
 
     print("\n## 4. Adam on the input samples through simulate (no jaxhyst.control)\n")
     model = jh.Model(jh.TABLE3[10], jh.ACTUATOR2)

@@ -12,11 +12,11 @@ displacement with respect to the input coordinates z (`jaxhyst.control.limits.In
 every input is inside the current and slew-rate limits), γ ∈ (0, 1] the step factor and
 Q a zero-phase low-pass **robustness filter** that keeps learning to the band [0, f_c]
 where the model is trusted (Longman, Int. J. Control 73 (2000) 930). The step is the
-least-squares solution itself (singular values below `RCOND` of the largest cut), not a
-damped one: a hysteretic model's most sensitive input directions are rough (a
-perturbation at one sample moves the magnetization from there on), so damping would
-keep mostly those, while the exact step for a smooth error is smooth — which is why the
-error is filtered first: the measurement noise beyond the band never reaches the step.
+least-squares solution itself (singular values below `learning_step.RCOND` of the
+largest cut), not a damped one: a hysteretic model's most sensitive input directions are
+rough (a perturbation at one sample moves the magnetization from there on), so damping
+would keep mostly those, while the exact step for a smooth error is smooth — which is why
+the error is filtered first: the measurement noise beyond the band never reaches the step.
 
 - **The measurement steers the step.** The first step learns below `FIRST_BAND` of the
   Nyquist frequency. A step whose measured error is not higher than the one before
@@ -41,7 +41,9 @@ error is filtered first: the measurement noise beyond the band never reaches the
   is the plant's phase). A lead is the plant's phase, never a delay. A small lag is
   ambiguous: a plant 10 % off the model lags or leads it by up to ~1.5 samples at 200
   per period, and such a lag corrected as a delay leaves the plant tracking a shifted
-  reference. A lag under `signals.AMBIGUOUS_PHASE` (5° at the fundamental) is taken for a
+  reference. A lag under `signals.AMBIGUOUS_PHASE` (5° at the fundamental), or under
+  what the model lags by itself with its parameters 10 % off (`learning_step.own_lag`:
+  several samples near a structural resonance), is taken for a
   delay only where shifting the record back explains its departure from the model
   (`signals.delay_explained`); else it is learned as the plant's phase, and the first
   report and the stop name it. Where the acquisition's delay is known, give it
@@ -57,10 +59,21 @@ error is filtered first: the measurement noise beyond the band never reaches the
   (``state.reach``; halved with an undone step). The first step is the model's own,
   held to `FIRST_REACH` (2) times the input change an error needs at the drive's mean
   gain.
+- **The model checks its own step.** A hysteretic model is not smooth at its
+  reversals, so a least-squares step shaped around them can undo itself on the model as
+  on the plant. A step's effect is simulated on the model, not only linearised: where
+  the simulated error falls by less than half the fall the linearisation predicts, the
+  step is halved (up to three times; the length simulated best is taken), and the error
+  predicted is the simulated one (`jaxhyst.control.learning_step`). A fall predicted
+  within the noise of the error is not judged (it neither grows nor shrinks the steps).
 - **Convergence and stalls.** Learning stops when the model predicts no fall larger
-  than the noise (within its band: what is left lies where it is not trusted), after
+  than the noise (within its band: what is left lies where it is not trusted) — not
+  even its linearisation, the most it promises: a step the simulation bears out only
+  in part is still taken, shortened, and the plant's measurement decides; one the
+  simulation says would raise the error is never taken — after
   three undone steps in a row, or with a band below the reference's fundamental, and
-  says where it stopped trusting the model.
+  says where it stopped trusting the model, and where the input sits on its limits
+  (what is left may be beyond the actuator's reach).
 
 Use: ``learner = IterativeLearning.of(model, reference, current_limit=…)``; ``state =
 learner.init()``; then repeatedly apply ``state.input``, measure the displacement at the
@@ -74,21 +87,27 @@ from __future__ import annotations
 import dataclasses
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..saved import Model
 from .compensate import Compensation, compensate, rms_error
 from .learning_state import LearningReport, LearningState
+from .learning_step import learning_step, mispredicted, own_lag
 from .limits import InputMap
 from .reference import Reference
-from .refine import RESIDUAL_UNIT, TrackingResiduals
-from .signals import automatic_delay, delay_note, estimate_delay, low_pass, noise_level, shift_back
+from .refine import TrackingResiduals
+from .signals import (
+    DELAY_THRESHOLD,
+    ambiguous,
+    automatic_delay,
+    delay_note,
+    estimate_delay,
+    noise_level,
+    shift_back,
+)
 from .tracking import Tracking, evaluate
 
-#: Singular values of J below this fraction of the largest are cut from a learning step.
-RCOND = 1e-10
 #: The step factor γ's smallest value (a step is shortened no further).
 MIN_FACTOR = 1.0 / 64
 #: Undone steps in a row after which learning stops.
@@ -125,11 +144,6 @@ def _borne_out(reach, ratio, growth):
 
 class DelayError(ValueError):
     """The measured record is shifted against the input (``delay="refuse"``)."""
-
-
-@eqx.filter_jit
-def _jacobian(residuals: TrackingResiduals, z):
-    return jax.jacfwd(lambda z: residuals(z)[: residuals.r.shape[0]])(z)
 
 
 class IterativeLearning(eqx.Module):
@@ -208,7 +222,8 @@ class IterativeLearning(eqx.Module):
 
     def _measurement(self, state, measured):
         """(the measurement averaged over repeats and shifted back by its delay, the
-        delay corrected, σ (m), the lag found)."""
+        delay corrected, σ (m), the lag found, the lag the plant may show by itself where
+        it was needed: `learning_step.own_lag`, else 0)."""
         y = np.asarray(measured, dtype=np.float64)
         N = self.reference.n_samples
         if y.shape[-1:] != (N,) or y.ndim not in (1, 2):
@@ -227,7 +242,7 @@ class IterativeLearning(eqx.Module):
             return mean, sigma / np.sqrt(y.shape[0] if y.ndim == 2 else 1)
 
         mean, sigma = mean_and_sigma(y)
-        predicted = self.predict(state)
+        predicted, own = self.predict(state), 0.0
         found = estimate_delay(mean, predicted, periodic)
         # (a measurement can only be late: one that leads the prediction shows the
         # plant's phase differing from the model's, which learning absorbs)
@@ -237,8 +252,10 @@ class IterativeLearning(eqx.Module):
             # (a delay is the acquisition's, the same at every measurement: the one found
             # at the first is held; a lag found later is the plant's phase at that input)
             lag = state.reports[0].delay
-        else:
-            lag = automatic_delay(mean, predicted, found, sigma, periodic)
+        else:  # (the first measurement: a lag beyond 5° may still be the plant's own)
+            own = own_lag(self.residuals.tracking, state.input, periodic) if \
+                found >= DELAY_THRESHOLD and not ambiguous(found, N) else 0.0
+            lag = automatic_delay(mean, predicted, found, sigma, periodic, own)
         if lag and self.delay == "refuse":
             raise DelayError(f"the measured displacement lags the input by {lag} samples "
                              f"({lag * self.reference.dt:.3g} s): shift it back (or let "
@@ -246,16 +263,31 @@ class IterativeLearning(eqx.Module):
         if lag:
             y = shift_back(y, lag, periodic)
             mean, sigma = mean_and_sigma(y)
-        return mean, lag, sigma, found
+        return mean, lag, sigma, found, own
 
-    def _alignment_note(self, state: LearningState, lag: int, found: float) -> str:
+    def _limit_note(self, z) -> str:
+        """What a stop adds where the input of ``z`` sits on its limits (within 0.1 %
+        of their range): the error left may be beyond the actuator's reach."""
+        u = self.residuals.imap.input_values(z)
+        lo, hi = (float(v) for v in (self.compensation.limits.lower,
+                                      self.compensation.limits.upper))
+        at = int(np.sum((u <= lo + 1e-3 * (hi - lo)) | (u >= hi - 1e-3 * (hi - lo))))
+        if not at:
+            return ""
+        return (f"; the input sits on its limits [{lo:.4g}, {hi:.4g}] at {at} of its "
+                f"{u.shape[0]} samples: what is left may be beyond the actuator's reach "
+                "(compensate on a model of it says how far)")
+
+    def _alignment_note(self, state: LearningState, lag: int, found: float,
+                        own: float) -> str:
         """What a stop adds where the first measurement's lag was one a plant a little
         off the model could show by itself (empty otherwise)."""
         if isinstance(self.delay, int):  # (given: nothing was assumed)
             return ""
-        return delay_note(*((lag, found) if not state.reports else
-                            (state.reports[0].delay, state.reports[0].lag)),
-                          self.reference.n_samples, stop=True)
+        first = state.reports[0] if state.reports else None
+        return delay_note(*((lag, found) if first is None else (first.delay, first.lag)),
+                          self.reference.n_samples, stop=True,
+                          own=own if first is None else first.own_lag)
 
     def step(self, state: LearningState, measured) -> LearningState:
         """The next state, from the displacement ``measured`` (m, shape (N,) or (R, N):
@@ -263,7 +295,7 @@ class IterativeLearning(eqx.Module):
         if state.stopped is not None:
             raise ValueError(f"learning has stopped ({state.stopped}); start again with "
                              "init() or state_for(input) to go on.")
-        y, lag, sigma, found = self._measurement(state, measured)
+        y, lag, sigma, found, own = self._measurement(state, measured)
         ref = self.reference
         r, scale = np.asarray(ref.displacement), ref.scale
         e = r - y
@@ -282,6 +314,8 @@ class IterativeLearning(eqx.Module):
             ratio = None if fell is None or not expected else fell / expected
             if ratio is None:
                 why = "the first measurement" if fell is None else "no change predicted"
+            elif expected <= margin and fell <= margin:  # (the noise hides the fall)
+                why = "the fall predicted lay within the noise of the error: not judged"
             elif ratio >= 0.75:
                 why = f"the error fell as predicted ({ratio:.2g} of the predicted fall)"
                 factor, band = min(1.5 * factor, 1.0), min(2.0 * band, limit, nyquist)
@@ -301,7 +335,7 @@ class IterativeLearning(eqx.Module):
             action, rejected = "undone", rejected + 1
             if state.step_ratio is not None:
                 reach = 0.5 * state.step_ratio
-            failed = self._mispredicted(e, state.predicted_e)
+            failed = mispredicted(e, state.predicted_e, ref.dt)
             if failed is not None and failed >= 2.0 * fundamental and 0.5 * failed < band:
                 band = 0.5 * failed
                 where = (f"it mispredicted the plant most at {failed:.4g} Hz: the model "
@@ -315,7 +349,7 @@ class IterativeLearning(eqx.Module):
                    f"best input; {where}")
             best_z, best_error, best_e = state.best_z, state.best_error, state.best_e
         if not isinstance(self.delay, int) and not state.reports:
-            why += delay_note(lag, found, ref.n_samples, stop=False)
+            why += delay_note(lag, found, ref.n_samples, stop=False, own=own)
         errors = (*state.errors, error)
         stop = None
         if best_error <= NOISE_FLOOR * noise or best_error == 0:
@@ -328,9 +362,11 @@ class IterativeLearning(eqx.Module):
                     f"reference's fundamental {fundamental:.4g} Hz")
         iteration = state.iteration + 1
         if stop is not None:
-            stop += self._alignment_note(state, lag, found)
+            if stop.startswith("stalled"):
+                stop += self._limit_note(best_z)
+            stop += self._alignment_note(state, lag, found, own)
             report = LearningReport(iteration, error, noise, lag, found, "stopped", stop, None,
-                                    0.0, factor, band)
+                                    0.0, factor, band, own)
             imap = self.residuals.imap
             return dataclasses.replace(
                 state, z=best_z, input=imap.input_values(best_z),
@@ -344,21 +380,28 @@ class IterativeLearning(eqx.Module):
                 why += (f"; the plant's lag against the model ({found - lag:+.2f} samples) "
                         f"limits learning to {band:.4g} Hz")
         cap = FIRST_REACH if reach is None else reach
-        z, step, predicted, predicted_e = self._step(best_z, best_e, factor, band,
-                                                     noise * ref.scale, cap, best_error)
-        if step >= (1 - 1e-9) * cap * best_error:
+        z, step, predicted, predicted_e, halved, held, linear = learning_step(
+            self.residuals, best_z, best_e, factor=factor * self.gain, band=band,
+            sigma=noise * ref.scale, reach=cap, error=best_error)
+        if held:
             why += (f"; the step held to {reach:.3g}× the error (the largest step per unit "
                     "of error the plant has borne out)" if reach is not None else
                     f"; the step held to {FIRST_REACH:.3g}× the error (before any step was "
                     "measured: twice the input change an error needs at the drive's mean "
                     "gain)")
-        if action == "accepted" and best_error - predicted <= margin:
+        if halved:
+            why += (f"; the step shortened to 1/{2**halved}: the model itself, simulated, "
+                    "did not bear out its linear prediction for a longer one")
+        # (stop where not even the linearisation promises a fall above the noise, or
+        # where the model, simulated, says the step would raise the error)
+        if action == "accepted" and best_error - linear <= margin or predicted >= best_error:
             stop = (f"converged in the band below {band:.4g} Hz: the model predicts no fall "
                     f"of the error larger than the noise"
                     + ("" if band >= nyquist else " (what is left lies where it is not "
-                       "trusted)") + self._alignment_note(state, lag, found))
+                       "trusted)") + self._limit_note(best_z)
+                    + self._alignment_note(state, lag, found, own))
             report = LearningReport(iteration, error, noise, lag, found, "stopped", stop,
-                                    None, 0.0, factor, band)
+                                    None, 0.0, factor, band, own)
             return dataclasses.replace(
                 state, z=best_z, input=self.residuals.imap.input_values(best_z),
                 iteration=iteration, errors=errors,
@@ -366,7 +409,7 @@ class IterativeLearning(eqx.Module):
                 best_error=best_error, best_e=best_e, factor=factor, band=band,
                 rejected=rejected, predicted=None, band_limit=limit)
         report = LearningReport(iteration, error, noise, lag, found, action, why, predicted,
-                                step, factor, band)
+                                step, factor, band, own)
         return LearningState(z=z, input=self.residuals.imap.input_values(z),
                              iteration=iteration, errors=errors,
                              reports=(*state.reports, report), stopped=None, best_z=best_z,
@@ -374,42 +417,3 @@ class IterativeLearning(eqx.Module):
                              band=band, rejected=rejected, predicted=predicted,
                              band_limit=limit, predicted_e=predicted_e, reach=reach,
                              step_ratio=step / max(best_error, 1e-300))
-
-    def _step(self, z, e, factor, band, sigma, reach=None, error=None):
-        """(the next coordinates, the step's rms change of input over its swing, the error
-        the model predicts for it) from the measured error e (m) at z, its noise σ (m),
-        the step factor γ and the band (Hz); a step larger than ``reach`` × the rms
-        ``error`` (over the peak-to-peak) is shortened to that."""
-        ref, imap = self.reference, self.residuals.imap
-        scale = ref.scale * RESIDUAL_UNIT
-        J = np.asarray(_jacobian(self.residuals, jnp.asarray(z)))  # (residual units per z)
-        target = low_pass(e, ref.dt, band, sigma) / scale
-        dz = factor * self.gain * np.linalg.lstsq(J, target, rcond=RCOND)[0]
-        u = imap.input_values(z)
-        swing = max(float(np.ptp(u)), 1e-300)
-        u_next = imap.input_values(z + dz)
-        for _ in range(2 if reach is not None else 0):  # (the map to the input bends)
-            s = np.sqrt(np.mean((u_next - u) ** 2))
-            if s <= reach * error * swing:
-                break
-            dz = dz * (reach * error * swing / s)
-            u_next = imap.input_values(z + dz)
-        z_next = z + dz
-        # the model's prediction of the error after the step (linear in δz)
-        predicted_e = (e / scale - J @ (z_next - z)) * scale
-        predicted = float(np.sqrt(np.mean(predicted_e**2)) / ref.scale)
-        step = float(np.sqrt(np.mean((u_next - u) ** 2)) / swing)
-        return z_next, step, predicted, predicted_e
-
-    def _mispredicted(self, e, predicted_e) -> float | None:
-        """The lowest frequency (Hz) where the measured error e after a step departs from
-        the model's prediction by at least half the largest departure: where the model
-        failed (an unmodelled mode); None without a prediction."""
-        if predicted_e is None:
-            return None
-        D = np.abs(np.fft.rfft(e - predicted_e))
-        D[0] = 0.0
-        f = np.fft.rfftfreq(e.shape[0], self.reference.dt)
-        if not D.max() > 0:
-            return None
-        return float(f[np.flatnonzero(D >= 0.5 * D.max())[0]])

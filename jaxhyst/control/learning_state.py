@@ -13,11 +13,13 @@ import numpy as np
 class LearningReport:
     """What one learning step did: the ``iteration``; the measured rms ``error`` and the
     noise σ estimated (both relative to the reference's peak-to-peak); the ``delay``
-    corrected (whole samples) and the ``lag`` found (samples, > 0: the measurement
-    late against the model's prediction); the ``action`` (``accepted``, ``undone``, ``stopped``)
-    and why; the error the model ``predicted`` for the next input; the ``step`` taken
-    (rms change of the input over its swing); the step ``factor`` γ and the learning
-    ``band`` (Hz) it used."""
+    corrected (whole samples) and the ``lag`` found (samples, > 0: the measurement late
+    against the model's prediction); the ``action`` (``accepted``, ``undone``,
+    ``stopped``) and why; the error the model ``predicted`` for the next input (its
+    simulation of the step, not the linearisation); the ``step`` taken (rms change of
+    the input over its swing); the step ``factor`` γ and the learning ``band`` (Hz) it
+    used; at the first measurement, the lag (samples) a plant 10 % off the model may show
+    by itself where it was needed to judge a lag beyond 5° (``own_lag``, else 0)."""
 
     iteration: int
     error: float
@@ -30,6 +32,7 @@ class LearningReport:
     step: float
     factor: float
     band: float
+    own_lag: float = 0.0
 
     def __str__(self) -> str:
         pred = "" if self.predicted is None else f", predicted next {self.predicted:.3e}"

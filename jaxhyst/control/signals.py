@@ -94,10 +94,12 @@ AMBIGUOUS_PHASE = np.deg2rad(5.0)
 EXPLAINED = 0.5
 
 
-def ambiguous(found: float, n: int) -> bool:
+def ambiguous(found: float, n: int, own: float = 0.0) -> bool:
     """Whether a lag of ``found`` samples (of ``n`` a period) is one a plant a little off
-    the model could show by itself (`AMBIGUOUS_PHASE`)."""
-    return 2 * np.pi * found / n < AMBIGUOUS_PHASE
+    the model could show by itself: below `AMBIGUOUS_PHASE`, or at most ``own`` samples
+    (the lag the model itself shows with its parameters 10 % off:
+    `jaxhyst.control.learning_step.own_lag`)."""
+    return 2 * np.pi * found / n < AMBIGUOUS_PHASE or found <= own
 
 
 def delay_explained(measured: np.ndarray, predicted: np.ndarray, lag: int, sigma: float,
@@ -112,24 +114,24 @@ def delay_explained(measured: np.ndarray, predicted: np.ndarray, lag: int, sigma
 
 
 def automatic_delay(measured: np.ndarray, predicted: np.ndarray, found: float, sigma: float,
-                    periodic: bool) -> int:
+                    periodic: bool, own: float = 0.0) -> int:
     """The acquisition's delay (whole samples) taken from the lag ``found`` of a record
     ``measured`` (σ: its noise) behind the model's ``predicted``: none below
-    `DELAY_THRESHOLD`; a lag a plant off the model could show by itself (`ambiguous`)
-    only where shifting the record back explains its departure (`delay_explained`);
-    a larger one rounded."""
+    `DELAY_THRESHOLD`; a lag a plant off the model could show by itself (`ambiguous`,
+    ``own``) only where shifting the record back explains its departure
+    (`delay_explained`); a larger one rounded."""
     lag = int(np.round(found)) if found >= DELAY_THRESHOLD else 0
-    if lag and ambiguous(found, measured.shape[-1]) and \
+    if lag and ambiguous(found, measured.shape[-1], own) and \
             not delay_explained(measured, predicted, lag, sigma, periodic):
         return 0
     return lag
 
 
-def delay_note(lag: int, found: float, n: int, stop: bool) -> str:
+def delay_note(lag: int, found: float, n: int, stop: bool, own: float = 0.0) -> str:
     """What learning's first report (``stop`` False) or a stop says of the first
     measurement's lag ``found`` (samples, of ``n`` a period) where a plant a little off
     the model could show it by itself, ``lag`` the delay taken; empty otherwise."""
-    if found < DELAY_THRESHOLD or not ambiguous(found, n):
+    if found < DELAY_THRESHOLD or not ambiguous(found, n, own):
         return ""
     k = int(np.round(found))
     count = f"{k} sample" + ("s" if k != 1 else "")
