@@ -106,8 +106,11 @@ def fit_affine(tracking: Tracking, shape, mid: float, half: float, r, z0,
 
 
 #: Levenberg–Marquardt steps of the refinement between two looks at its progress, and
-#: the least relative fall of the rms error per look that counts as progress.
-CHUNK, PROGRESS = 10, 0.01
+#: the least relative fall of the rms error per look that counts as progress. Each look
+#: restarts the solver (its damping too): with 10 steps a look, a 2000 Hz three-tone
+#: reference "stalled" at 4× the uncompensated error where 25 reach 225×
+#: (benchmarks/RESULTS.md).
+CHUNK, PROGRESS = 25, 0.01
 
 
 def refine_input(residuals: TrackingResiduals, z0, max_steps: int, target: float):
