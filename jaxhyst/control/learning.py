@@ -253,7 +253,7 @@ class IterativeLearning(eqx.Module):
             # at the first is held; a lag found later is the plant's phase at that input)
             lag = state.reports[0].delay
         else:  # (the first measurement: a lag beyond 5° may still be the plant's own)
-            own = own_lag(self.residuals.tracking, state.input, periodic) if \
+            own = own_lag(self.residuals.tracking, state.input, predicted, periodic) if \
                 found >= DELAY_THRESHOLD and not ambiguous(found, N) else 0.0
             lag = automatic_delay(mean, predicted, found, sigma, periodic, own)
         if lag and self.delay == "refuse":

@@ -111,19 +111,19 @@ def mispredicted(e, predicted_e, dt: float) -> float | None:
     return float(f[np.flatnonzero(D >= 0.5 * D.max())[0]])
 
 
-def own_lag(tracking: Tracking, u, periodic: bool) -> float:
+def own_lag(tracking: Tracking, u, predicted, periodic: bool) -> float:
     """The lag (samples) a plant whose parameters are all `OFF` off the model's may show
-    behind the model's displacement for the input u by itself, to first order: the sum
+    behind the model's displacement ``predicted`` (m, (N,): `evaluate` of ``tracking``
+    for the input u, which the caller has) by itself, to first order: the sum
     over the model's ten parameters of the lag of its record with that one parameter
     `OFF` higher. Ten simulations (parameters are data: nothing compiles); large near a
     structural resonance, ~1.5 samples at 200 a period far below it."""
     model = tracking.model
     x = np.asarray(model.params.to_array())
-    y0 = evaluate(tracking, u)
     total = 0.0
     for j in range(x.shape[-1]):
         off = x.copy()
         off[..., j] *= 1.0 + OFF
         moved = eqx.tree_at(lambda t: t.model.params, tracking, Parameters.from_array(off))
-        total += abs(estimate_delay(evaluate(moved, u), y0, periodic))
+        total += abs(estimate_delay(evaluate(moved, u), predicted, periodic))
     return total
