@@ -4,8 +4,8 @@ by the profile itself.
 The linear (Wald or bound-aware) interval of a parameter assumes that the cost rises
 quadratically along its profile. `refine_intervals` tests that at each end of the linear
 interval (a quantity of one sign: the same half-width on ln|θ|): it re-fits every other
-parameter with this one held at the end (all ends of all parameters in one vmapped batch
-of local solves, each warm-started on the linearised profile path) and reads the
+parameter with this one held at the end (a round of local solves of all ends, each
+warm-started on the linearised profile path: `_chunk` says how they are batched) and reads the
 profile's Δχ² there. Where it lies within `TOLERANCE` of the threshold c (3.84, or the
 bound-aware one), the linear end stands — the quadratic describes the profile.
 Elsewhere the end is moved to where the profile crosses c:
@@ -35,6 +35,10 @@ parameter, its value, −Δχ², every free value) for the report to say so and 
 """
 
 from __future__ import annotations
+
+import concurrent.futures
+import functools
+import os
 
 import equinox as eqx
 import jax
@@ -66,6 +70,37 @@ RE_FIT_TOLERANCES = (1e-7, 1e-12)
 #: A re-fit this far below the fit's cost (in Δχ²; and by more than `stopped_short`'s
 #: 1e-6 of the cost) shows that the fit is not the minimum.
 LOWER = 0.1
+
+
+def _chunk(ends: int) -> int:
+    """Re-fits per batch: on a CPU one (a vmapped batch of Levenberg–Marquardt solves runs
+    as long as its slowest member, every member computing every step: one at a time, on
+    the cores side by side, costs a third of a batch of all ends), elsewhere every end of
+    a round in one batch (an accelerator's batch costs about what one re-fit does)."""
+    return 1 if jax.default_backend() == "cpu" else ends
+
+
+@functools.cache
+def _pool() -> concurrent.futures.ThreadPoolExecutor:
+    return concurrent.futures.ThreadPoolExecutor(max(1, min(os.cpu_count() or 1, 4)),
+                                                 thread_name_prefix="jaxhyst-profile")
+
+
+def _side_by_side(fn, items):
+    """``[fn(x) for x in items]``, on the pool's threads (XLA releases the GIL while a
+    compiled program runs)."""
+    if len(items) <= 1:
+        return [fn(x) for x in items]
+    return list(_pool().map(fn, items))
+
+
+def _refit(problem, solver, lowers, uppers, z0s, max_steps, size, idx):
+    """The re-fits of the ends ``idx`` (of the round's (B, n) boxes and starts) in one
+    batch of ``size``: (idx, their costs, their solver coordinates)."""
+    fill = np.concatenate([idx, np.full(size - idx.size, idx[0])])
+    c_, z_ = _held_costs(problem, solver, jnp.asarray(lowers[fill]), jnp.asarray(uppers[fill]),
+                         jnp.asarray(z0s[fill]), max_steps)
+    return idx, np.asarray(c_)[:idx.size], np.asarray(z_)[:idx.size]
 
 
 @eqx.filter_jit
@@ -156,12 +191,14 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
         dx = C[:, i] / C[i, i] * (np.log(v / x_hat[i]) if logs else (v - x_hat[i]) / scale[i])
         return path_point(x_hat, scale, positive, dx)
 
-    last_x, last_v = np.full((B, lower.size), np.nan), np.full(B, np.nan)
+    n = lower.size
+    last_x, last_v = np.full((B, n), np.nan), np.full(B, np.nan)
+    costs, zs = np.full(B, np.nan), np.zeros((B, n))  # (each end's last re-fit)
     for round_ in range(ROUNDS):
         todo = np.flatnonzero(~done)
         if todo.size == 0:
             break
-        lowers, uppers, z0s = np.tile(lower, (B, 1)), np.tile(upper, (B, 1)), []
+        lowers, uppers, z0s = np.tile(lower, (B, 1)), np.tile(upper, (B, 1)), np.zeros((B, n))
         values = np.zeros(B)
         for k in range(B):
             i, _, logs = ends[k]
@@ -176,22 +213,29 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
                 x0 = last_x[k] + x0 - on_path(i, logs, last_v[k])
             x0 = np.clip(x0, lowers[k], uppers[k])
             width = np.where(uppers[k] > lowers[k], uppers[k] - lowers[k], 1.0)
-            z0s.append(np.asarray(z_from_u(np.clip((x0 - lowers[k]) / width, 0.0, 1.0))))
-        # (the batch always holds two ends per parameter — the rest copies of the first —
-        # so that its program does not depend on how many ends these data leave)
-        pad = [0] * (2 * len(names) - B)
-        costs, zs = _held_costs(problem, solver_, jnp.asarray(np.vstack([lowers, lowers[pad]])),
-                                jnp.asarray(np.vstack([uppers, uppers[pad]])),
-                                jnp.asarray(np.array(z0s + [z0s[0]] * len(pad))), max_steps)
-        costs, zs = np.asarray(costs)[:B], np.asarray(zs)[:B]
-        last_x = lowers + (uppers - lowers) * np.asarray(u_from_z(zs))
-        last_x[~np.isfinite(costs)] = np.nan  # (a failed re-fit: the path again)
-        last_v = values
+            z0s[k] = np.asarray(z_from_u(np.clip((x0 - lowers[k]) / width, 0.0, 1.0)))
+        # only the ends not yet found are re-fitted (a round that has one end left runs
+        # one re-fit, not every end again), `_chunk()` at a time (the rest copies of the
+        # first: one program whatever the number of ends), side by side on the CPU's
+        # cores — after the first batch of the first round, which compiles the program
+        # in this thread (compile counters and configuration contexts are the caller's)
+        run = todo if round_ else np.arange(B)
+        size = _chunk(2 * len(names))
+
+        refit = functools.partial(_refit, problem, solver_, lowers, uppers, z0s, max_steps,
+                                  size)
+        chunks = [run[c0:c0 + size] for c0 in range(0, run.size, size)]
+        first = 0 if round_ else 1  # (the program compiles in this thread, once)
+        for idx, c_, z_ in [*map(refit, chunks[:first]), *_side_by_side(refit, chunks[first:])]:
+            costs[idx], zs[idx] = c_, z_
+        x_run = lowers[run] + (uppers[run] - lowers[run]) * np.asarray(u_from_z(zs[run]))
+        x_run[~np.isfinite(costs[run])] = np.nan  # (a failed re-fit: the path again)
+        last_x[run], last_v[run] = x_run, values[run]
         drop = (cost0 - costs) / sigma2
         k_low = int(np.nanargmax(np.where(np.isfinite(costs), drop, -np.inf)))
         if drop[k_low] > LOWER and stopped_short(cost0, float(costs[k_low])) and \
                 drop[k_low] > report.lower_cost.get("delta_chi2", 0.0):
-            report.lower_cost = {"held": names[ends[k_low][0]], "value": float(values[k_low]),
+            report.lower_cost = {"held": names[ends[k_low][0]], "value": float(last_v[k_low]),
                                  "delta_chi2": float(drop[k_low]),
                                  "values": [float(v) for v in last_x[k_low]]}
         delta = np.maximum(-drop, 0.0)
