@@ -112,10 +112,9 @@ def _compile_report_meanwhile(problem, report, linearized: bool = False):
     compiled."""
     import numpy as np
 
-    if not report:
-        return None
     key = _structure(problem)
-    needed = {"sampling"} if linearized else {"sampling", "jacobian"}
+    # (the model's error at the sampling is computed with or without a report)
+    needed = {"sampling"} if linearized or not report else {"sampling", "jacobian"}
     done = _COMPILED.get(key, set()) if key is not None else set()
     if needed <= done:  # (compiled already: nothing to gain)
         return None
