@@ -75,14 +75,17 @@ LOWER = 0.1
 def _chunk(ends: int) -> int:
     """Re-fits per batch: on a CPU one (a vmapped batch of Levenberg–Marquardt solves runs
     as long as its slowest member, every member computing every step: one at a time, on
-    the cores side by side, costs a third of a batch of all ends), elsewhere every end of
-    a round in one batch (an accelerator's batch costs about what one re-fit does)."""
+    the cores side by side, is several times faster — `benchmarks/RESULTS.md`, issue 43),
+    elsewhere every end of a round in one batch (an accelerator's batch costs about what
+    one re-fit does)."""
     return 1 if jax.default_backend() == "cpu" else ends
 
 
 @functools.cache
 def _pool() -> concurrent.futures.ThreadPoolExecutor:
-    return concurrent.futures.ThreadPoolExecutor(max(1, min(os.cpu_count() or 1, 4)),
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
+        (os.cpu_count() or 1)  # (the cores this process may use)
+    return concurrent.futures.ThreadPoolExecutor(max(1, min(cores, 4)),
                                                  thread_name_prefix="jaxhyst-profile")
 
 
