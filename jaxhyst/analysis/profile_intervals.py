@@ -209,8 +209,8 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
             values[k] = v
             lowers[k, i] = uppers[k, i] = v
             # from the last re-fit of this end moved along the path by the change of the
-            # held value (an end that is done starts where it ended: a few steps); the
-            # first time, from the linearised path
+            # held value; the first time, from the linearised path (an end already found
+            # is not re-fitted: below)
             x0 = on_path(i, logs, v)
             if np.all(np.isfinite(last_x[k])):
                 x0 = last_x[k] + x0 - on_path(i, logs, last_v[k])
