@@ -216,3 +216,44 @@ def test_a_fits_report_compiles_in_a_thread_of_its_own_while_the_fit_runs():
     assert not jh.fit._linearized((start,), {"solver": "bfgs"})
     # once per problem structure: a second fit of these data starts no thread
     assert jh.fit._compile_report_meanwhile(problem, True, linearized=True) is None
+
+
+def test_the_profile_checks_refits_take_their_tolerance_as_a_value(monkeypatch):
+    """The profile check's re-fits stop at rtol = `profile_intervals.PRECISION` over the
+    fit's χ² (at most ``RE_FIT_TOLERANCES[0]``), a value passed to their program: a second
+    check of the same problem with a far tighter rtol compiles no re-fit program."""
+    import jax.numpy as jnp
+
+    from jaxhyst.analysis import identifiability, profile_intervals
+
+    t = jnp.linspace(0.0, 3.0, 8)
+
+    def residuals(theta, data):
+        return {"y": jnp.exp(theta["b"] * t) + theta["m"] - data["y"]}
+
+    space = jh.ParameterSpace.for_tree(lower={"b": -3.0, "m": -30.0},
+                                       upper={"b": 3.0, "m": 30.0})
+    y = np.exp(0.5 * np.asarray(t)) + 0.5 * np.random.default_rng(1).standard_normal(8)
+    problem = jh.ResidualProblem(residuals, space, {"y": jnp.asarray(y)},
+                                 groups={"y": {"sigma": 0.5}})
+    fit = jh.solve(problem, {"b": 0.4, "m": 0.1}, solver="lm", report=False)
+    chi2 = float(fit.cost)  # (σ declared: the cost is the χ²)
+    rtols, make = [], profile_intervals.make_solver
+
+    def recorded(solver, rtol, atol):
+        rtols.append(float(rtol))
+        return make(solver, rtol, atol)
+
+    monkeypatch.setattr(profile_intervals, "make_solver", recorded)
+    first = identifiability(problem, fit.params)
+    monkeypatch.setattr(profile_intervals, "PRECISION", profile_intervals.PRECISION * 1e-4)
+    with counting() as compiled:
+        second = identifiability(problem, fit.params)
+    loosest = profile_intervals.RE_FIT_TOLERANCES[0]
+    assert rtols == pytest.approx([min(loosest, 0.01 / max(chi2, 1.0)),
+                                   min(loosest, 1e-6 / max(chi2, 1.0))], rel=1e-9)
+    assert rtols[1] < 0.1 * rtols[0]
+    assert not [n for n in compiled.names if "_held_costs" in n], compiled.names
+    assert first.interval_methods == second.interval_methods
+    for name, (lo, hi) in first.intervals.items():
+        assert second.intervals[name] == pytest.approx((lo, hi), rel=1e-6), name

@@ -64,9 +64,13 @@ BRACKET = 0.01
 ROUNDS = 8
 #: Levenberg–Marquardt steps of each constrained re-fit (warm-started).
 STEPS = 40
-#: The re-fits' Cauchy termination (rtol, atol): looser in rtol than a fit's (1e-10) — a
-#: re-fit needs its cost to ~1e-7 of itself, far below the Δχ² it is read for.
-RE_FIT_TOLERANCES = (1e-7, 1e-12)
+#: The re-fits' Cauchy termination (rtol at most, atol): looser than a fit's (1e-10) — a
+#: re-fit needs its cost only to `PRECISION` in Δχ², so rtol is PRECISION over the fit's
+#: χ² (cost/σ²) where that is smaller (long records), a value passed to the program (one
+#: program whatever the rtol).
+RE_FIT_TOLERANCES = (1e-5, 1e-12)
+#: The precision (in Δχ²) a re-fit's cost is wanted to: far below `TOLERANCE`·3.84.
+PRECISION = 0.01
 #: A re-fit this far below the fit's cost (in Δχ²; and by more than `stopped_short`'s
 #: 1e-6 of the cost) shows that the fit is not the minimum.
 LOWER = 0.1
@@ -185,7 +189,8 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
     done = np.zeros(len(ends), bool)
     ratio_first = np.full(len(ends), np.nan)
     unbounded = {}
-    solver_ = make_solver(solver, *RE_FIT_TOLERANCES)
+    rtol = min(RE_FIT_TOLERANCES[0], PRECISION / max(cost0 / sigma2, 1.0))
+    solver_ = make_solver(solver, jnp.asarray(rtol), RE_FIT_TOLERANCES[1])
     B = len(ends)
 
     def on_path(i, logs, v):
