@@ -325,3 +325,19 @@ def reference_play(params: jh.Parameters, spread: float, cells: int, H, a_rev=No
         _, h = state(Hn + p["alpha"] * M)
         out.append(M)
     return np.asarray(out)
+
+
+def exponential_problem(sigma):
+    """y = exp(b·t) + m on 8 points, t in [0, 3], b = 0.5, m = 0, noise σ (declared)."""
+    import jax.numpy as jnp
+
+    t = jnp.linspace(0.0, 3.0, 8)
+
+    def residuals(theta, data):
+        return {"y": jnp.exp(theta["b"] * t) + theta["m"] - data["y"]}
+
+    space = jh.ParameterSpace.for_tree(lower={"b": -3.0, "m": -30.0},
+                                       upper={"b": 3.0, "m": 30.0})
+    y = np.exp(0.5 * np.asarray(t)) + sigma * np.random.default_rng(1).standard_normal(8)
+    return jh.ResidualProblem(residuals, space, {"y": jnp.asarray(y)},
+                              groups={"y": {"sigma": sigma}}), y

@@ -13,6 +13,7 @@ import threading
 import jax
 import numpy as np
 import pytest
+from helpers import exponential_problem
 
 import jaxhyst as jh
 from jaxhyst.control import sinusoidal_reference
@@ -222,20 +223,9 @@ def test_the_profile_checks_refits_take_their_tolerance_as_a_value(monkeypatch):
     """The profile check's re-fits stop at rtol = `profile_intervals.PRECISION` over the
     fit's χ² (at most ``RE_FIT_TOLERANCES[0]``), a value passed to their program: a second
     check of the same problem with a far tighter rtol compiles no re-fit program."""
-    import jax.numpy as jnp
-
     from jaxhyst.analysis import identifiability, profile_intervals
 
-    t = jnp.linspace(0.0, 3.0, 8)
-
-    def residuals(theta, data):
-        return {"y": jnp.exp(theta["b"] * t) + theta["m"] - data["y"]}
-
-    space = jh.ParameterSpace.for_tree(lower={"b": -3.0, "m": -30.0},
-                                       upper={"b": 3.0, "m": 30.0})
-    y = np.exp(0.5 * np.asarray(t)) + 0.5 * np.random.default_rng(1).standard_normal(8)
-    problem = jh.ResidualProblem(residuals, space, {"y": jnp.asarray(y)},
-                                 groups={"y": {"sigma": 0.5}})
+    problem, _ = exponential_problem(0.5)
     fit = jh.solve(problem, {"b": 0.4, "m": 0.1}, solver="lm", report=False)
     chi2 = float(fit.cost)  # (σ declared: the cost is the χ²)
     rtols, make = [], profile_intervals.make_solver

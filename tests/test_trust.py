@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
+from helpers import exponential_problem
 
 import jaxhyst as jh
 from jaxhyst.analysis.wording import Z95
@@ -315,7 +316,7 @@ def test_the_profile_check_fires_on_a_curved_case_and_not_on_a_straight_one(nois
     exact = identifiability(exact_problem, jh.solve(exact_problem, jh.TABLE1_TRUE,
                                                     report=False).params)
     assert exact.linearity == {} and "NOT LINEAR" not in str(exact)
-    curved, _ = _exponential_problem(3.0)
+    curved, _ = exponential_problem(3.0)
     bent = jh.solve(curved, {"b": 0.4, "m": 0.1}, solver="lm", report=False)
     batches = _recording_batches(monkeypatch)
     rep = identifiability(curved, bent.params)
@@ -351,20 +352,6 @@ def test_table3_at_2000_hz_gets_profile_intervals_inside_the_box(monkeypatch):
         assert np.sign(lo) == np.sign(hi) == np.sign(c["value"]), c
 
 
-def _exponential_problem(sigma):
-    """y = exp(b·t) + m on 8 points, t in [0, 3], b = 0.5, m = 0, noise σ (declared)."""
-    t = jnp.linspace(0.0, 3.0, 8)
-
-    def residuals(theta, data):
-        return {"y": jnp.exp(theta["b"] * t) + theta["m"] - data["y"]}
-
-    space = jh.ParameterSpace.for_tree(lower={"b": -3.0, "m": -30.0},
-                                       upper={"b": 3.0, "m": 30.0})
-    y = np.exp(0.5 * np.asarray(t)) + sigma * np.random.default_rng(1).standard_normal(8)
-    return jh.ResidualProblem(residuals, space, {"y": jnp.asarray(y)},
-                              groups={"y": {"sigma": sigma}}), y
-
-
 def test_the_linearity_flag_fires_where_the_linear_interval_would_miss_too_often():
     """y = exp(b·t) + m on 8 points, t in [0, 3]: with little noise the profile of b is
     the quadratic (not flagged); with much noise it is flat below and steep above, the
@@ -376,7 +363,7 @@ def test_the_linearity_flag_fires_where_the_linear_interval_would_miss_too_often
 
     reps = {}
     for sigma in (0.5, 3.0):
-        problem, _ = _exponential_problem(sigma)
+        problem, _ = exponential_problem(sigma)
         fit = jh.solve(problem, {"b": 0.4, "m": 0.1}, solver="lm", report=False)
         reps[sigma] = identifiability(problem, fit.params)
     quiet, loud = reps[0.5], reps[3.0]
