@@ -206,9 +206,10 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
         todo = np.flatnonzero(~done)
         if todo.size == 0:
             break
+        run = todo if round_ else np.arange(B)  # (the ends re-fitted this round: below)
         lowers, uppers, z0s = np.tile(lower, (B, 1)), np.tile(upper, (B, 1)), np.zeros((B, n))
         values = np.zeros(B)
-        for k in range(B):
+        for k in run:
             i, _, logs = ends[k]
             v = value(i, logs, s_now[k])
             values[k] = v
@@ -227,7 +228,6 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
         # first: one program whatever the number of ends), side by side on the CPU's
         # cores — after the first batch of the first round, which compiles the program
         # in this thread (compile counters and configuration contexts are the caller's)
-        run = todo if round_ else np.arange(B)
         size = _chunk(2 * len(names))
 
         refit = functools.partial(_refit, problem, solver_, lowers, uppers, z0s, max_steps,
