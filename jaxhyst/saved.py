@@ -7,7 +7,8 @@ name), the substeps, the parameters' units and leaf shape, the actuator's name a
 whether it has turns per metre, the condition law (its features, references, fitted
 range and coefficient names), the versions of jaxhyst, JAX and Equinox that wrote it,
 and whatever the caller adds (``meta``; ``identify --save-model`` adds the data file, its
-SHA-256, the outcome, the rms error and the identifiability report) — followed by the
+SHA-256, the outcome, the rms error, the identifiability report, the fitted loops' range
+of conditions and the error its leave-one-out folds lead one to expect) — followed by the
 model's arrays as ``equinox.tree_serialise_leaves`` writes them. The header says what
 the arrays are, so `load_model` builds the matching template and
 ``equinox.tree_deserialise_leaves`` fills it; nothing is unpickled. Written through the

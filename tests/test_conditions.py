@@ -204,6 +204,15 @@ def test_predict_reproduces_the_fit_and_leave_one_out_reports_each_loop(tmp_path
         B = got["data"][got["loop"] == i]
         assert rows[i]["rms"] == pytest.approx(np.sqrt(np.mean((mine - B) ** 2)), rel=1e-12)
 
+    # the saved model predicts as the result does: each loop within the fitted
+    # conditions, with the error the folds lead one to expect
+    assert main(["predict", str(law), str(data), "--json"]) == 0
+    from_model = json.loads(capsys.readouterr().out)["loops"]
+    for r, m in zip(rows, from_model, strict=True):
+        assert m["extrapolation"] == r["extrapolation"] == ""
+        assert m["expected_relative_error"] == r["expected_relative_error"] > 0
+        assert m["rms"] == pytest.approx(r["rms"], rel=1e-6)
+
     # the saved model keeps the law: at 400 Hz it is the fit's loop 1, from Python and
     # from the command line (a sinusoid of the loop's amplitude: its B within 1 %)
     model = jh.load_model(law)

@@ -301,7 +301,19 @@ def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
     meta = read_header(tmp_path / "m.eqx")["meta"]  # what it was fitted to, and the report
     assert meta["data_sha256"] == hashlib.sha256(f.read_bytes()).hexdigest()
     assert meta["identifiability"]["rank"] == res["identifiability"]["rank"]
+    assert meta["fitted_conditions"] == {"amplitude": [pytest.approx(20e3)] * 2}
+    assert meta["expected_error"] is None  # (no leave-one-out folds)
     assert json.loads(capsys.readouterr().out)["outcome"] == "max_steps_reached"
+    # predict with the model says whether each loop lies within the fitted conditions
+    big = tmp_path / "big.csv"
+    big.write_text("H,B\n" + "".join(f"{3 * float(h)!r},{float(b)!r}\n"
+                                      for h, b in zip(H, B, strict=True)))
+    for data, beyond in ((f, ""), (big, "amplitude (6e+04 A/m; fitted 2e+04–2e+04)")):
+        assert main(["predict", str(tmp_path / "m.eqx"), str(data), "--json"]) == 0
+        row = json.loads(capsys.readouterr().out)["loops"][0]
+        assert row["extrapolation"] == beyond and "expected_relative_error" not in row
+    assert main(["predict", str(tmp_path / "m.eqx"), str(big)]) == 0
+    assert "an extrapolation beyond the fitted loops' amplitude" in capsys.readouterr().out
     # report reads the model file as it reads the result (the problem rebuilt from its
     # header, the data checked against the SHA-256 it was fitted to)
     assert main(["report", str(tmp_path / "m.eqx"), "--json"]) == 0

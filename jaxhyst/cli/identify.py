@@ -33,7 +33,7 @@ from .options import (
     VARIANTS,
     Parser,
 )
-from .predictions import joint_view, records_of
+from .predictions import expected_error, fitted_range, joint_view, records_of
 from .problems import DEFAULT_CELLS, build_problem, resolve_bounds
 from .spec import (
     CLIError,
@@ -322,6 +322,8 @@ def run(args) -> int:
                       data_sha256=file_sha256(spec["data"]), outcome=result.result,
                       rms_error=result.rms_error, output=result.output,
                       identifiability=json_safe(d.get("identifiability")),
+                      fitted_conditions=fitted_range(spec, records.actuator, strict=False),
+                      expected_error=expected_error(d),
                       problem={**spec, "data": _portable_path(spec["data"], args.save_model)})
     wrote = [f for f in (args.out, args.save_model, *figures) if f]
     text = str(result) + (held_out_text(held) if held else "") + \

@@ -51,7 +51,15 @@ def run(args) -> int:
     from jaxhyst.identify.conditions import ConditionWarning
     from jaxhyst.io import read_loops, write_columns_csv
 
-    from .predictions import error_summary, predict_loops, records_of
+    from .predictions import (
+        error_summary,
+        expected_error,
+        fitted_range,
+        outside,
+        predict_loops,
+        records_of,
+        where_text,
+    )
 
     if is_model_file(args.result):  # a saved model (identify --save-model)
         from .predict_model import run_model
@@ -108,11 +116,12 @@ def run(args) -> int:
         nan = np.full(pred.shape, np.nan)
         columns["data"].append(nan if data is None else data)
         columns["error"].append(nan if data is None else pred - data)
-    expected = _expected_error(saved)
-    fitted_range = _fitted_range(spec, records_of(fitted).actuator)
+    expected = expected_error(saved)
+    fitted_conditions = fitted_range(spec, records_of(fitted).actuator)
     for lp, row in zip(loops, rows, strict=True):
-        row["extrapolation"] = _outside({**spec, "data": source}, lp,
-                                        records_of(fitted).actuator, fitted_range, overrides)
+        row["extrapolation"] = outside({**spec, "data": source}, lp,
+                                       records_of(fitted).actuator, fitted_conditions,
+                                       overrides)
         if expected is not None:
             row["expected_relative_error"] = expected["extrapolated" if row["extrapolation"]
                                                       else "interpolated"]
@@ -132,12 +141,7 @@ def run(args) -> int:
                f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|)") if "rms" in r else \
             (f" (not compared with the file's data: {r['not_compared']})"
              if "not_compared" in r else " (no data to compare)")
-        where = ("; an extrapolation beyond the fitted loops' " + r["extrapolation"]
-                 if r["extrapolation"] else "; within the fitted loops' conditions")
-        exp = r.get("expected_relative_error")
-        hint = (f"; expected from the leave-one-out folds: {100 * exp:.2g} % of max|data|"
-                if exp is not None else "")
-        text.append(f"  loop {r['loop']}{err}{where}{hint}")
+        text.append(f"  loop {r['loop']}{err}{where_text(r)}")
     text += [f"  wrote {f}" for f in (args.out, args.png) if f]
     print_result(args, {"loops": rows, "out": args.out, "png": args.png}, "\n".join(text))
     return 0
@@ -172,56 +176,3 @@ def _scaled(lp, amplitude, actuator, source):
     if peak <= 0:
         raise CLIError(f"--amplitude: loop {lp.index} of {source} has no field to scale.")
     return dataclasses.replace(lp, H=H * (amplitude / peak), I=None, signals={})
-
-
-def _expected_error(saved) -> dict | None:
-    """The error a prediction may be expected to have, from the result's leave-one-out
-    folds of the kept form: the largest held-out rms relative to the loop's size among
-    the interpolated folds (a loop inside the others' conditions) and among all folds
-    (an extrapolation); None without folds."""
-    held = saved.get("leave_one_out")
-    if not isinstance(held, dict) or not held.get("kept"):
-        return None
-    rows = held["forms"][held["kept"]]["rows"]
-    if not rows:
-        return None
-    rel = [r["rms"] / r["data_scale"] for r in rows]
-    inside = [x for x, r in zip(rel, rows, strict=True) if not r.get("outside")]
-    return {"interpolated": max(inside) if inside else max(rel), "extrapolated": max(rel)}
-
-
-def _fitted_range(spec, actuator) -> dict:
-    """The range of each condition (amplitude, frequency, temperature) of the fitted
-    loops."""
-    from jaxhyst.io import read_loops
-
-    from .problems import loop_conditions
-
-    loops = read_loops(spec["data"], spec.get("columns"))
-    if spec.get("loop") is not None and not spec.get("joint"):
-        loops = [lp for lp in loops if lp.index == spec["loop"]] or loops
-    c = loop_conditions(spec, loops, actuator)
-    out = {"amplitude": (min(c.amplitude), max(c.amplitude))}
-    for name in ("frequency", "temperature"):
-        values = getattr(c, name)
-        if values is not None:
-            out[name] = (min(values), max(values))
-    return out
-
-
-def _outside(spec, loop, actuator, fitted_range, overrides) -> str:
-    """'' if ``loop`` lies within the fitted loops' conditions (1 % of slack), else
-    which condition lies beyond them and how far."""
-    from .problems import loop_conditions
-
-    c = loop_conditions(spec, [loop], actuator, overrides)
-    units = {"amplitude": "A/m", "frequency": "Hz", "temperature": "°C"}
-    for name, (lo, hi) in fitted_range.items():
-        values = getattr(c, name)
-        if values is None:
-            continue
-        v = values[0]
-        slack = 0.01 * max(abs(lo), abs(hi), 1e-300)
-        if v < lo - slack or v > hi + slack:
-            return f"{name} ({v:.4g} {units[name]}; fitted {lo:.4g}–{hi:.4g})"
-    return ""

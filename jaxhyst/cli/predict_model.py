@@ -26,7 +26,7 @@ def run_model(args) -> int:
     from jaxhyst.io import SIGNAL_OUTPUTS, read_loops, write_columns_csv
 
     from .models import model_at, read_model
-    from .predictions import error_summary
+    from .predictions import error_summary, outside, where_text
 
     check_outputs(args)
     if not args.data:
@@ -43,6 +43,8 @@ def run_model(args) -> int:
                            f"{name}; it would have no effect.")
     loops = select_loops(read_loops(args.data, None), args.loop, args.data)
     spec = {"data": args.data, "run_in_periods": 1}
+    fitted, expected = _fitted_conditions(args.result, saved.actuator)
+    overrides = {"frequency": args.frequency, "temperature": args.temperature}
     rows, curves, columns = [], [], {k: [] for k in ("loop", "H_A_per_m", "predicted",
                                                     "data", "error")}
     for lp in loops:
@@ -60,7 +62,12 @@ def run_model(args) -> int:
         pred = np.asarray(kind.of(sim))[sim.run_in:]
         data = np.asarray(lp.signals[out], dtype=np.float64)
         row = {"loop": lp.index, "output": kind.name, "samples": int(pred.shape[0]),
-               **error_summary(pred, data)}
+               **error_summary(pred, data),
+               "extrapolation": None if fitted is None else
+               outside(spec, lp, saved.actuator, fitted, overrides)}
+        if expected is not None and row["extrapolation"] is not None:
+            row["expected_relative_error"] = expected[
+                "extrapolated" if row["extrapolation"] else "interpolated"]
         rows.append(row)
         curves.append((f"loop {lp.index}", H, pred, data))
         for k, v in (("loop", np.full(pred.shape, lp.index, float)), ("H_A_per_m", H),
@@ -76,7 +83,33 @@ def run_model(args) -> int:
     text = [f"prediction of {len(rows)} loop(s) of {os.path.basename(args.data)} from the "
             f"saved model {os.path.basename(args.result)}"]
     text += [f"  loop {r['loop']}: rms error {r['rms']:.4g} (max {r['max_abs']:.4g}, "
-             f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|)" for r in rows]
+             f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|){where_text(r)}"
+             for r in rows]
     text += [f"  wrote {f}" for f in (args.out, args.png) if f]
     print_result(args, {"loops": rows, "out": args.out, "png": args.png}, "\n".join(text))
     return 0
+
+
+def _fitted_conditions(path: str, actuator):
+    """(the fitted loops' conditions {name: [lowest, highest]} or None, the error the
+    leave-one-out folds lead one to expect or None) from a model file's header: as
+    ``identify --save-model`` records them, or, for a file saved before it did, the
+    conditions of the data file it names, where that is still there and unchanged."""
+    import os
+
+    from jaxhyst.saved import read_header
+
+    from .models import file_sha256
+    from .predictions import fitted_range
+
+    meta = read_header(path).get("meta", {})
+    if "fitted_conditions" in meta:
+        return meta["fitted_conditions"], meta.get("expected_error")
+    spec = dict(meta.get("problem") or {})
+    if "data" not in spec:
+        return None, None
+    spec["data"] = os.path.join(os.path.dirname(os.path.abspath(path)), spec["data"])
+    if not os.path.isfile(spec["data"]) or file_sha256(spec["data"]) != meta.get(
+            "data_sha256"):
+        return None, None
+    return fitted_range(spec, actuator, strict=False), None

@@ -85,3 +85,73 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
         data = lp.signals.get(name)
         out.append((predicted, None if data is None else np.asarray(data)))
     return out
+
+
+def expected_error(saved) -> dict | None:
+    """The error a prediction may be expected to have, from a result's (``saved``: the
+    result JSON as a dict) leave-one-out folds of the kept form: the largest held-out rms
+    relative to the loop's size among the interpolated folds (a loop inside the others'
+    conditions) and among all folds (an extrapolation); None without folds."""
+    held = saved.get("leave_one_out")
+    if not isinstance(held, dict) or not held.get("kept"):
+        return None
+    rows = held["forms"][held["kept"]]["rows"]
+    if not rows:
+        return None
+    rel = [r["rms"] / r["data_scale"] for r in rows]
+    inside = [x for x, r in zip(rel, rows, strict=True) if not r.get("outside")]
+    return {"interpolated": max(inside) if inside else max(rel), "extrapolated": max(rel)}
+
+
+def fitted_range(spec, actuator, strict: bool = True) -> dict | None:
+    """{condition: [lowest, highest]} of the fitted loops (amplitude: the peak field in
+    A/m; frequency in Hz and temperature in °C where every loop has them). Where the
+    loops' conditions cannot be read (some loops without a frequency …), a `CLIError`,
+    or None if not ``strict``."""
+    from jaxhyst.io import read_loops
+
+    loops = read_loops(spec["data"], spec.get("columns"))
+    if spec.get("loop") is not None and not spec.get("joint"):
+        loops = [lp for lp in loops if lp.index == spec["loop"]] or loops
+    try:
+        c = loop_conditions(spec, loops, actuator)
+    except CLIError:
+        if strict:
+            raise
+        return None
+    out = {"amplitude": [min(c.amplitude), max(c.amplitude)]}
+    for name in ("frequency", "temperature"):
+        values = getattr(c, name)
+        if values is not None:
+            out[name] = [min(values), max(values)]
+    return out
+
+
+def outside(spec, loop, actuator, fitted, overrides) -> str:
+    """'' if ``loop`` lies within the ``fitted`` range (`fitted_range`, 1 % of slack),
+    else which condition lies beyond it and how far."""
+    c = loop_conditions(spec, [loop], actuator, overrides)
+    units = {"amplitude": "A/m", "frequency": "Hz", "temperature": "°C"}
+    for name, (lo, hi) in fitted.items():
+        values = getattr(c, name, None)
+        if values is None:
+            continue
+        v = values[0]
+        slack = 0.01 * max(abs(lo), abs(hi), 1e-300)
+        if v < lo - slack or v > hi + slack:
+            return f"{name} ({v:.4g} {units[name]}; fitted {lo:.4g}–{hi:.4g})"
+    return ""
+
+
+def where_text(row) -> str:
+    """The tail of a prediction's line: whether it extrapolates (``row["extrapolation"]``:
+    '' within, a description beyond, None not known) and the error the folds lead one to
+    expect (``row["expected_relative_error"]``, where there is one)."""
+    where = row.get("extrapolation")
+    text = ("; an extrapolation beyond the fitted loops' " + where if where else
+            "; within the fitted loops' conditions" if where == "" else
+            "; the fitted loops' conditions are not known (a model saved without them)")
+    exp = row.get("expected_relative_error")
+    if exp is not None:
+        text += f"; expected from the leave-one-out folds: {100 * exp:.2g} % of max|data|"
+    return text
