@@ -248,6 +248,10 @@ def test_a_b_driven_fit_from_the_command_line_saves_a_model_driven_by_b(tmp_path
                                                              rel=1e-3), name
     saved = jh.load_model(model)
     assert saved.actuator.name == NO_ACTUATOR.name and isinstance(saved.variant, jh.ClassicJA)
+    from jaxhyst.saved import read_header
+
+    assert read_header(model)["meta"]["fitted_conditions"]["amplitude"] == \
+        [pytest.approx(float(np.max(np.abs(H))))] * 2  # (the peak field of the loop fitted)
     assert main(["simulate", "--model", str(model), "--flux-amplitude", "0.3", "--frequency",
                  "50", "--samples-per-period", "80", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)

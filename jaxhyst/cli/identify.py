@@ -322,7 +322,8 @@ def run(args) -> int:
                       data_sha256=file_sha256(spec["data"]), outcome=result.result,
                       rms_error=result.rms_error, output=result.output,
                       identifiability=json_safe(d.get("identifiability")),
-                      fitted_conditions=fitted_range(spec, records.actuator, strict=False),
+                      fitted_conditions=fitted_range(spec, getattr(records, "actuator", None),
+                                                     strict=False),
                       expected_error=expected_error(d),
                       problem={**spec, "data": _portable_path(spec["data"], args.save_model)})
     wrote = [f for f in (args.out, args.save_model, *figures) if f]

@@ -107,9 +107,11 @@ def fitted_range(spec, actuator, strict: bool = True) -> dict | None:
     """{condition: [lowest, highest]} of the fitted loops (amplitude: the peak field in
     A/m; frequency in Hz and temperature in °C where every loop has them). Where the
     loops' conditions cannot be read (some loops without a frequency …), a `CLIError`,
-    or None if not ``strict``."""
+    or None if not ``strict``. ``actuator`` None: a material's loops (a field column)."""
+    from jaxhyst.identify.joint import NO_ACTUATOR
     from jaxhyst.io import read_loops
 
+    actuator = NO_ACTUATOR if actuator is None else actuator
     loops = read_loops(spec["data"], spec.get("columns"))
     if spec.get("loop") is not None and not spec.get("joint"):
         loops = [lp for lp in loops if lp.index == spec["loop"]] or loops
