@@ -187,6 +187,9 @@ def test_predict_reproduces_the_fit_and_leave_one_out_reports_each_loop(tmp_path
     for r in held:
         assert np.isfinite(r["rms"]) and r["rms"] > 0 and r["data_scale"] > 0
         assert r["own_rms"] > 0 and r["nearest_rms"] > 0 and "outside" in r
+    # how far each fold extrapolated: 100 and 1600 Hz lie a factor 4 beyond the others
+    assert [r["beyond"] for r in held] == [{"frequency": pytest.approx(4.0)}, {},
+                                            {"frequency": pytest.approx(4.0)}]
 
     # predict from the result file: exactly the fit's own prediction of each loop
     pred_csv = tmp_path / "pred.csv"
@@ -212,6 +215,16 @@ def test_predict_reproduces_the_fit_and_leave_one_out_reports_each_loop(tmp_path
         assert m["extrapolation"] == r["extrapolation"] == ""
         assert m["expected_relative_error"] == r["expected_relative_error"] > 0
         assert m["rms"] == pytest.approx(r["rms"], rel=1e-6)
+    # at 3200 Hz (a factor 2 beyond the fitted 100–1600 Hz, less than the folds' 4) the
+    # folds' extrapolation error is expected; at 16 kHz (×10) no number is given
+    for f, within_reach in ((3200.0, True), (16000.0, False)):
+        assert main(["predict", str(law), str(data), "--loop", "1", "--frequency", str(f),
+                     "--json"]) == 0
+        row = json.loads(capsys.readouterr().out)["loops"][0]
+        assert row["extrapolation"].startswith("frequency")
+        assert ("expected_relative_error" in row) == within_reach == ("beyond_folds" not in row)
+        if not within_reach:
+            assert row["beyond_folds"]["frequency"] == [pytest.approx(10.0), pytest.approx(4.0)]
 
     # the saved model keeps the law: at 400 Hz it is the fit's loop 1, from Python and
     # from the command line (a sinusoid of the loop's amplitude: its B within 1 %)

@@ -133,6 +133,35 @@ def test_the_summary_says_when_the_nearest_loops_fit_predicts_better():
     assert "BASELINE BETTER" not in held_out_text(held)
 
 
+def test_a_prediction_expects_the_folds_error_only_as_far_as_the_folds_extrapolated():
+    from jaxhyst.cli.predictions import beyond, expect, expected_error, where_text
+
+    assert beyond(50.0, 10.0, 20.0, "amplitude") == 2.5 == beyond(4.0, 10.0, 20.0, "frequency")
+    assert beyond(15.0, 10.0, 20.0, "amplitude") == 1.0
+    assert beyond(35.0, 20.0, 30.0, "temperature") == 5.0
+    rows = [{"rms": 1.0, "data_scale": 100.0, "outside": True, "beyond": {"amplitude": 3.0}},
+            {"rms": 0.5, "data_scale": 100.0, "outside": False, "beyond": {}}]
+    expected = expected_error({"leave_one_out": {"kept": "play", "forms": {"play": {
+        "rows": rows}}}})
+    assert expected == {"interpolated": 0.005, "extrapolated": 0.01,
+                        "reach": {"amplitude": 3.0}}
+    inside, near, far, other = ({"extrapolation": w} for w in ("", "amplitude …",
+                                                               "amplitude …", "frequency …"))
+    expect(inside, {}, expected)
+    expect(near, {"amplitude": 2.0}, expected)
+    expect(far, {"amplitude": 6.0}, expected)
+    expect(other, {"frequency": 1.5}, expected)  # (the folds never left the frequencies)
+    assert inside["expected_relative_error"] == 0.005 and near["expected_relative_error"] == 0.01
+    assert far["beyond_folds"] == {"amplitude": [6.0, 3.0]} and \
+        "expected_relative_error" not in far
+    assert "than any leave-one-out fold reached (×3)" in where_text(far)
+    assert other["beyond_folds"] == {"frequency": [1.5, None]}
+    assert "than any leave-one-out fold went" in where_text(other)
+    old = {"interpolated": 0.005, "extrapolated": 0.01}  # (a result written before reach)
+    expect(far := {"extrapolation": "amplitude …"}, {"amplitude": 6.0}, old)
+    assert far["expected_relative_error"] == 0.01
+
+
 @pytest.mark.extended  # (a rate-dependent leave-one-out)
 def test_a_candidate_carries_its_own_loss_terms_into_the_folds_and_the_final_fit(
         tmp_path, capsys):

@@ -31,16 +31,20 @@ def _distance(a, b) -> float:
     return d
 
 
-def _outside(conditions, i) -> bool:
-    """Whether loop i's conditions lie beyond the range of the other loops' (any of
-    amplitude, frequency, temperature): predicting it is an extrapolation."""
+def _beyond(conditions, i) -> dict:
+    """{condition: how far loop i lies beyond the range of the other loops'} for each
+    condition (amplitude, frequency, temperature) where it does: predicting it is an
+    extrapolation (a factor; kelvin for the temperature, `predictions.beyond`)."""
+    from .predictions import beyond
+
     others = [c for j, c in enumerate(conditions) if j != i]
+    out = {}
     for name in ("amplitude", "frequency", "temperature"):
         values = [c[name] for c in others if c[name] is not None]
         v = conditions[i][name]
         if v is not None and values and not min(values) <= v <= max(values):
-            return True
-    return False
+            out[name] = beyond(v, min(values), max(values), name)
+    return out
 
 
 def _conditions(spec, loops):
@@ -202,9 +206,10 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                 (tuple(problem.space.names), problem.space.free_values(result.params)))
             predicted = _predict(fitted, problem, result.params, held)
             curves.setdefault(form, []).append((held, *predicted.pop("_curve")))
+            far = _beyond(conditions, i)
             row = {"loop": held.index, **predicted,
                    "rms_fitted": result.rms_error, "outcome": result.result,
-                   "outside": _outside(conditions, i), "bounds": fitted["bounds"],
+                   "outside": bool(far), "beyond": far, "bounds": fitted["bounds"],
                    "extra_bounds": fitted["extra_bounds"]}
             if not result.success:
                 short.append(f"{form}, fold without loop {held.index}: {result.result}")

@@ -48,29 +48,30 @@ def run(args) -> int:
     import numpy as np
 
     import jaxhyst as jh
+    from jaxhyst.drive import MAX_FIELD
     from jaxhyst.identify.conditions import ConditionWarning
     from jaxhyst.io import read_loops, write_columns_csv
 
     from .predictions import (
         error_summary,
+        expect,
         expected_error,
         fitted_range,
         outside,
         predict_loops,
         records_of,
+        scaled_loop,
         where_text,
     )
 
+    if args.amplitude is not None and args.amplitude >= MAX_FIELD:
+        raise CLIError(f"--amplitude {args.amplitude:g}: a peak field of {MAX_FIELD:g} A/m or "
+                       "more is no laboratory field; give the peak field in A/m.")
     if is_model_file(args.result):  # a saved model (identify --save-model)
         from .predict_model import run_model
 
         return run_model(args)
     check_outputs(args)
-    from jaxhyst.drive import MAX_FIELD
-
-    if args.amplitude is not None and args.amplitude >= MAX_FIELD:
-        raise CLIError(f"--amplitude {args.amplitude:g}: a peak field of {MAX_FIELD:g} A/m or "
-                       "more is no laboratory field; give the peak field in A/m.")
     saved, spec, fitted, params = load_result(args.result)
     if isinstance(records_of(fitted), jh.FluxProblem):
         raise CLIError(f"{args.result} is a B-driven fit (--driven-by B): predict reads "
@@ -90,7 +91,7 @@ def run(args) -> int:
     actuator = records_of(fitted).actuator
     elsewhere = _elsewhere(loops, overrides, args.amplitude)
     if args.amplitude is not None:
-        loops = [_scaled(lp, args.amplitude, actuator, source) for lp in loops]
+        loops = [scaled_loop(lp, args.amplitude, actuator, source) for lp in loops]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConditionWarning)
         predictions = predict_loops(spec, fitted, params, loops, overrides, source)
@@ -119,12 +120,10 @@ def run(args) -> int:
     expected = expected_error(saved)
     fitted_conditions = fitted_range(spec, records_of(fitted).actuator)
     for lp, row in zip(loops, rows, strict=True):
-        row["extrapolation"] = outside({**spec, "data": source}, lp,
-                                       records_of(fitted).actuator, fitted_conditions,
-                                       overrides)
-        if expected is not None:
-            row["expected_relative_error"] = expected["extrapolated" if row["extrapolation"]
-                                                      else "interpolated"]
+        row["extrapolation"], far = outside({**spec, "data": source}, lp,
+                                            records_of(fitted).actuator, fitted_conditions,
+                                            overrides)
+        expect(row, far, expected)
     if args.png:
         from jaxhyst.plots import plot_predictions
 
@@ -163,16 +162,3 @@ def _elsewhere(loops, overrides, amplitude) -> dict:
         if why:
             out[lp.index] = "; ".join(why)
     return out
-
-
-def _scaled(lp, amplitude, actuator, source):
-    """The loop ``lp`` with its field scaled to the peak ``amplitude`` (A/m), no data."""
-    import dataclasses
-
-    import numpy as np
-
-    H = np.asarray(loop_field(lp, actuator, source), dtype=np.float64)
-    peak = float(np.max(np.abs(H)))
-    if peak <= 0:
-        raise CLIError(f"--amplitude: loop {lp.index} of {source} has no field to scale.")
-    return dataclasses.replace(lp, H=H * (amplitude / peak), I=None, signals={})

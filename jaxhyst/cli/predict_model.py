@@ -26,15 +26,12 @@ def run_model(args) -> int:
     from jaxhyst.io import SIGNAL_OUTPUTS, read_loops, write_columns_csv
 
     from .models import model_at, read_model
-    from .predictions import error_summary, outside, where_text
+    from .predictions import error_summary, expect, outside, scaled_loop, where_text
 
     check_outputs(args)
     if not args.data:
         raise CLIError(f"{args.result} is a saved model: give the data file whose loops it "
                        "predicts (predict MODEL.eqx DATA).")
-    if args.amplitude is not None:
-        raise CLIError("--amplitude scales a result's fitted loops; with a saved model give "
-                       "the loops to predict in the data file.")
     saved = read_model(args.result)
     law = saved.law.features if saved.law is not None else ()
     for name, feature in (("frequency", "log_f"), ("temperature", "T")):
@@ -50,6 +47,9 @@ def run_model(args) -> int:
     for lp in loops:
         out = loop_signal(spec, lp, None)
         kind = output_kind(SIGNAL_OUTPUTS[out])
+        data = np.asarray(lp.signals[out], dtype=np.float64)
+        if args.amplitude is not None:  # (its field scaled: nothing measured to compare)
+            lp, data = scaled_loop(lp, args.amplitude, saved.actuator, args.data), None
         H = np.asarray(loop_field(lp, saved.actuator, args.data), dtype=np.float64)
         f = args.frequency if args.frequency is not None else lp.conditions.get("frequency")
         T = args.temperature if args.temperature is not None else \
@@ -60,18 +60,19 @@ def run_model(args) -> int:
                          amplitude=float(np.max(np.abs(H))))
         sim = model.simulate(loop_drive(spec, lp, out, model.actuator))
         pred = np.asarray(kind.of(sim))[sim.run_in:]
-        data = np.asarray(lp.signals[out], dtype=np.float64)
         row = {"loop": lp.index, "output": kind.name, "samples": int(pred.shape[0]),
-               **error_summary(pred, data),
-               "extrapolation": None if fitted is None else
-               outside(spec, lp, saved.actuator, fitted, overrides)}
-        if expected is not None and row["extrapolation"] is not None:
-            row["expected_relative_error"] = expected[
-                "extrapolated" if row["extrapolation"] else "interpolated"]
+               **(error_summary(pred, data) if data is not None else {
+                   "not_compared": f"its field scaled to the peak {args.amplitude:g} A/m"}),
+               "extrapolation": None}
+        if fitted is not None:
+            row["extrapolation"], far = outside(spec, lp, saved.actuator, fitted, overrides)
+            expect(row, far, expected)
         rows.append(row)
         curves.append((f"loop {lp.index}", H, pred, data))
+        nan = np.full(pred.shape, np.nan)
         for k, v in (("loop", np.full(pred.shape, lp.index, float)), ("H_A_per_m", H),
-                     ("predicted", pred), ("data", data), ("error", pred - data)):
+                     ("predicted", pred), ("data", nan if data is None else data),
+                     ("error", nan if data is None else pred - data)):
             columns[k].append(v)
     if args.png:
         from jaxhyst.plots import plot_predictions
@@ -82,9 +83,11 @@ def run_model(args) -> int:
         write_columns_csv(args.out, {k: np.concatenate(v) for k, v in columns.items()})
     text = [f"prediction of {len(rows)} loop(s) of {os.path.basename(args.data)} from the "
             f"saved model {os.path.basename(args.result)}"]
-    text += [f"  loop {r['loop']}: rms error {r['rms']:.4g} (max {r['max_abs']:.4g}, "
-             f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|){where_text(r)}"
-             for r in rows]
+    text += [f"  loop {r['loop']}" + (
+        f": rms error {r['rms']:.4g} (max {r['max_abs']:.4g}, "
+        f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|)" if "rms" in r else
+        f" (not compared with the file's data: {r['not_compared']})") + where_text(r)
+        for r in rows]
     text += [f"  wrote {f}" for f in (args.out, args.png) if f]
     print_result(args, {"loops": rows, "out": args.out, "png": args.png}, "\n".join(text))
     return 0

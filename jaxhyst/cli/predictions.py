@@ -5,7 +5,7 @@ prediction of each loop and its error."""
 from __future__ import annotations
 
 from .problems import loop_conditions
-from .spec import CLIError, loop_drive
+from .spec import CLIError, loop_drive, loop_field
 
 
 def records_of(problem):
@@ -87,11 +87,20 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     return out
 
 
+def beyond(value: float, lo: float, hi: float, name: str) -> float:
+    """How far the condition ``name`` at ``value`` lies beyond [lo, hi]: a factor for the
+    amplitude and the frequency (1 inside), kelvin for the temperature (0 inside)."""
+    if name == "temperature":
+        return max(lo - value, value - hi, 0.0)
+    return max(lo / value, value / hi, 1.0)
+
+
 def expected_error(saved) -> dict | None:
     """The error a prediction may be expected to have, from a result's (``saved``: the
     result JSON as a dict) leave-one-out folds of the kept form: the largest held-out rms
     relative to the loop's size among the interpolated folds (a loop inside the others'
-    conditions) and among all folds (an extrapolation); None without folds."""
+    conditions) and among all folds (an extrapolation), and how far the folds
+    extrapolated (``reach``: {condition: `beyond`}); None without folds."""
     held = saved.get("leave_one_out")
     if not isinstance(held, dict) or not held.get("kept"):
         return None
@@ -100,7 +109,12 @@ def expected_error(saved) -> dict | None:
         return None
     rel = [r["rms"] / r["data_scale"] for r in rows]
     inside = [x for x, r in zip(rel, rows, strict=True) if not r.get("outside")]
-    return {"interpolated": max(inside) if inside else max(rel), "extrapolated": max(rel)}
+    reach: dict = {}
+    for r in rows:
+        for name, far in (r.get("beyond") or {}).items():
+            reach[name] = max(reach.get(name, far), far)
+    return {"interpolated": max(inside) if inside else max(rel), "extrapolated": max(rel),
+            "reach": reach}
 
 
 def fitted_range(spec, actuator, strict: bool = True) -> dict | None:
@@ -129,11 +143,12 @@ def fitted_range(spec, actuator, strict: bool = True) -> dict | None:
     return out
 
 
-def outside(spec, loop, actuator, fitted, overrides) -> str:
-    """'' if ``loop`` lies within the ``fitted`` range (`fitted_range`, 1 % of slack),
-    else which condition lies beyond it and how far."""
+def outside(spec, loop, actuator, fitted, overrides) -> tuple[str, dict]:
+    """('' if ``loop`` lies within the ``fitted`` range (`fitted_range`, 1 % of slack),
+    else which condition lies beyond it and how far; {condition: `beyond`} for those)."""
     c = loop_conditions(spec, [loop], actuator, overrides)
     units = {"amplitude": "A/m", "frequency": "Hz", "temperature": "°C"}
+    text, far = "", {}
     for name, (lo, hi) in fitted.items():
         values = getattr(c, name, None)
         if values is None:
@@ -141,8 +156,29 @@ def outside(spec, loop, actuator, fitted, overrides) -> str:
         v = values[0]
         slack = 0.01 * max(abs(lo), abs(hi), 1e-300)
         if v < lo - slack or v > hi + slack:
-            return f"{name} ({v:.4g} {units[name]}; fitted {lo:.4g}–{hi:.4g})"
-    return ""
+            text = text or f"{name} ({v:.4g} {units[name]}; fitted {lo:.4g}–{hi:.4g})"
+            far[name] = beyond(v, lo, hi, name)
+    return text, far
+
+
+def expect(row, far: dict, expected: dict | None) -> None:
+    """Set a prediction's ``row["expected_relative_error"]`` from the folds' errors
+    (`expected_error`) — where the loop lies no further beyond the fitted conditions
+    (``far``, from `outside`) than some fold extrapolated; else ``row["beyond_folds"]``
+    ({condition: [how far, how far the folds reached or None]}) and no number."""
+    where = row.get("extrapolation")
+    if expected is None or where is None:
+        return
+    reach = expected.get("reach")
+    over = {} if not where or reach is None else {  # (a result written before `reach`)
+        n: [f, reach.get(n)] for n, f in far.items()
+        if n not in reach or f > (reach[n] + 1e-9 if n == "temperature"
+                                  else reach[n] * (1 + 1e-9))}
+    if over:
+        row["beyond_folds"] = over
+    else:
+        row["expected_relative_error"] = expected["extrapolated" if where else
+                                                  "interpolated"]
 
 
 def where_text(row) -> str:
@@ -156,4 +192,22 @@ def where_text(row) -> str:
     exp = row.get("expected_relative_error")
     if exp is not None:
         text += f"; expected from the leave-one-out folds: {100 * exp:.2g} % of max|data|"
+    for name, (far, reach) in (row.get("beyond_folds") or {}).items():
+        how = "{:.3g} K" if name == "temperature" else "×{:.3g}"
+        text += (f"; further beyond the fitted {name} ({how.format(far)}) than any "
+                 "leave-one-out fold " + (f"reached ({how.format(reach)})" if reach is not None
+                                          else "went") + ": no error to expect from them")
     return text
+
+
+def scaled_loop(lp, amplitude, actuator, source):
+    """The loop ``lp`` with its field scaled to the peak ``amplitude`` (A/m), no data."""
+    import dataclasses
+
+    import numpy as np
+
+    H = np.asarray(loop_field(lp, actuator, source), dtype=np.float64)
+    peak = float(np.max(np.abs(H)))
+    if peak <= 0:
+        raise CLIError(f"--amplitude: loop {lp.index} of {source} has no field to scale.")
+    return dataclasses.replace(lp, H=H * (amplitude / peak), I=None, signals={})
