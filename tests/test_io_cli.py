@@ -314,6 +314,12 @@ def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
         assert row["extrapolation"] == beyond and "expected_relative_error" not in row
     assert main(["predict", str(tmp_path / "m.eqx"), str(big)]) == 0
     assert "an extrapolation beyond the fitted loops' amplitude" in capsys.readouterr().out
+    # --amplitude scales the file's loops: the same prediction, not compared with data
+    assert main(["predict", str(tmp_path / "m.eqx"), str(f), "--amplitude", "60000",
+                 "--json"]) == 0
+    row = json.loads(capsys.readouterr().out)["loops"][0]
+    assert row["extrapolation"] == beyond and "rms" not in row and "60000" in row[
+        "not_compared"]
     # report reads the model file as it reads the result (the problem rebuilt from its
     # header, the data checked against the SHA-256 it was fitted to)
     assert main(["report", str(tmp_path / "m.eqx"), "--json"]) == 0
