@@ -100,7 +100,8 @@ def expected_error(saved) -> dict | None:
     result JSON as a dict) leave-one-out folds of the kept form: the largest held-out rms
     relative to the loop's size among the interpolated folds (a loop inside the others'
     conditions) and among all folds (an extrapolation), and how far the folds
-    extrapolated (``reach``: {condition: `beyond`}); None without folds."""
+    extrapolated (``reach``: {condition: `beyond`}; None for a result written before the
+    folds recorded it); None without folds."""
     held = saved.get("leave_one_out")
     if not isinstance(held, dict) or not held.get("kept"):
         return None
@@ -109,9 +110,9 @@ def expected_error(saved) -> dict | None:
         return None
     rel = [r["rms"] / r["data_scale"] for r in rows]
     inside = [x for x, r in zip(rel, rows, strict=True) if not r.get("outside")]
-    reach: dict = {}
-    for r in rows:
-        for name, far in (r.get("beyond") or {}).items():
+    reach: dict | None = {} if all("beyond" in r for r in rows) else None
+    for r in rows if reach is not None else ():
+        for name, far in r["beyond"].items():
             reach[name] = max(reach.get(name, far), far)
     return {"interpolated": max(inside) if inside else max(rel), "extrapolated": max(rel),
             "reach": reach}
