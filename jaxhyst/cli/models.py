@@ -48,7 +48,6 @@ def load_model_fit(path: str):
     data path resolved, the rebuilt problem, the fitted parameters — the law's
     coefficients of a ``--vary`` fit), the data checked against the SHA-256 it was
     fitted to."""
-    import os
 
     import numpy as np
 
@@ -58,24 +57,36 @@ def load_model_fit(path: str):
     from .problems import build_problem
 
     meta = read_header(path).get("meta", {})
+    spec, missing = fitted_data(path, meta)
+    if missing:
+        raise CLIError(missing)
+    model = jh.load_model(path)
+    params = ({n: np.float64(v) for n, v in model.coefficients.items()}
+              if model.law is not None else model.parameter_tree())
+    return meta, spec, build_problem(spec), params
+
+
+def fitted_data(path: str, meta: dict):
+    """(the problem spec a model file's header ``meta`` names, its data path resolved
+    relative to the file at ``path``; '' — or, where that data cannot be used, why, in
+    one line: no problem in the header, the file gone, or changed since the fit)."""
+    import os
+
     if "problem" not in meta:
-        raise CLIError(f"{path} holds a model without the problem it was fitted to (saved "
-                       "by Python or an older jaxhyst): report needs identify's --out result "
-                       "or a model saved by identify --save-model.")
+        return None, (f"{path} holds a model without the problem it was fitted to (saved "
+                      "by Python or an older jaxhyst): report needs identify's --out result "
+                      "or a model saved by identify --save-model.")
     spec = dict(meta["problem"])
     if not os.path.isabs(spec["data"]):  # stored relative to the model file
         spec["data"] = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(path)),
                                                      spec["data"]))
     if not os.path.isfile(spec["data"]):
-        raise CLIError(f"{path} was fitted to {spec['data']}, which is not there: put the "
-                       "data file back beside the model (same relative path).")
+        return spec, (f"{path} was fitted to {spec['data']}, which is not there: put the "
+                      "data file back beside the model (same relative path).")
     if meta.get("data_sha256") and file_sha256(spec["data"]) != meta["data_sha256"]:
-        raise CLIError(f"{spec['data']} changed since {path} was fitted to it (its SHA-256 "
-                       "differs): refit, or restore the file it was fitted to.")
-    model = jh.load_model(path)
-    params = ({n: np.float64(v) for n, v in model.coefficients.items()}
-              if model.law is not None else model.parameter_tree())
-    return meta, spec, build_problem(spec), params
+        return spec, (f"{spec['data']} changed since {path} was fitted to it (its SHA-256 "
+                      "differs): refit, or restore the file it was fitted to.")
+    return spec, ""
 
 
 def model_at(args, model, path: str, *, frequency=None, temperature=None, amplitude=None,

@@ -59,9 +59,9 @@ def run(args) -> int:
         fitted_range,
         outside,
         predict_loops,
+        prediction_line,
         records_of,
         scaled_loop,
-        where_text,
     )
 
     if args.amplitude is not None and args.amplitude >= MAX_FIELD:
@@ -135,12 +135,7 @@ def run(args) -> int:
         write_columns_csv(args.out, {k: np.concatenate(v) for k, v in columns.items()})
     text = [f"prediction of {len(rows)} loop(s) of {os.path.basename(source)} from "
             f"{os.path.basename(args.result)}"]
-    for r in rows:
-        err = (f": rms error {r['rms']:.4g} (max {r['max_abs']:.4g}, "
-               f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|)") if "rms" in r else \
-            (f" (not compared with the file's data: {r['not_compared']})"
-             if "not_compared" in r else " (no data to compare)")
-        text.append(f"  loop {r['loop']}{err}{where_text(r)}")
+    text += [prediction_line(r) for r in rows]
     text += [f"  wrote {f}" for f in (args.out, args.png) if f]
     print_result(args, {"loops": rows, "out": args.out, "png": args.png}, "\n".join(text))
     return 0

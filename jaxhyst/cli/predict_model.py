@@ -26,7 +26,7 @@ def run_model(args) -> int:
     from jaxhyst.io import SIGNAL_OUTPUTS, read_loops, write_columns_csv
 
     from .models import model_at, read_model
-    from .predictions import error_summary, expect, outside, scaled_loop, where_text
+    from .predictions import error_summary, expect, outside, prediction_line, scaled_loop
 
     check_outputs(args)
     if not args.data:
@@ -83,11 +83,7 @@ def run_model(args) -> int:
         write_columns_csv(args.out, {k: np.concatenate(v) for k, v in columns.items()})
     text = [f"prediction of {len(rows)} loop(s) of {os.path.basename(args.data)} from the "
             f"saved model {os.path.basename(args.result)}"]
-    text += [f"  loop {r['loop']}" + (
-        f": rms error {r['rms']:.4g} (max {r['max_abs']:.4g}, "
-        f"{100 * r['rms'] / r['data_scale']:.2g} % of max|data|)" if "rms" in r else
-        f" (not compared with the file's data: {r['not_compared']})") + where_text(r)
-        for r in rows]
+    text += [prediction_line(r) for r in rows]
     text += [f"  wrote {f}" for f in (args.out, args.png) if f]
     print_result(args, {"loops": rows, "out": args.out, "png": args.png}, "\n".join(text))
     return 0
@@ -98,21 +94,15 @@ def _fitted_conditions(path: str, actuator):
     leave-one-out folds lead one to expect or None) from a model file's header: as
     ``identify --save-model`` records them, or, for a file saved before it did, the
     conditions of the data file it names, where that is still there and unchanged."""
-    import os
-
     from jaxhyst.saved import read_header
 
-    from .models import file_sha256
+    from .models import fitted_data
     from .predictions import fitted_range
 
     meta = read_header(path).get("meta", {})
     if "fitted_conditions" in meta:
         return meta["fitted_conditions"], meta.get("expected_error")
-    spec = dict(meta.get("problem") or {})
-    if "data" not in spec:
-        return None, None
-    spec["data"] = os.path.join(os.path.dirname(os.path.abspath(path)), spec["data"])
-    if not os.path.isfile(spec["data"]) or file_sha256(spec["data"]) != meta.get(
-            "data_sha256"):
+    spec, missing = fitted_data(path, meta)
+    if missing:
         return None, None
     return fitted_range(spec, actuator, strict=False), None

@@ -182,6 +182,16 @@ def expect(row, far: dict, expected: dict | None) -> None:
                                                   "interpolated"]
 
 
+def prediction_line(row) -> str:
+    """A prediction's line for the terminal: the loop, its error against the file's data
+    (or why there is none) and `where_text`."""
+    err = (f": rms error {row['rms']:.4g} (max {row['max_abs']:.4g}, "
+           f"{100 * row['rms'] / row['data_scale']:.2g} % of max|data|)") if "rms" in row \
+        else (f" (not compared with the file's data: {row['not_compared']})"
+              if "not_compared" in row else " (no data to compare)")
+    return f"  loop {row['loop']}{err}{where_text(row)}"
+
+
 def where_text(row) -> str:
     """The tail of a prediction's line: whether it extrapolates (``row["extrapolation"]``:
     '' within, a description beyond, None not known) and the error the folds lead one to

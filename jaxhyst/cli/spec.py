@@ -179,8 +179,7 @@ def print_result(args, summary: dict, text: str) -> None:
 def note(label: str, text: str) -> None:
     """A line ``[label] text`` on stderr: what the command decided (a derived box, the
     starts), before the progress lines of the run."""
-    sys.stderr.write(f"[{label}] {text}\n")  # (one write: whole lines from threads)
-    sys.stderr.flush()
+    print(f"[{label}] {text}", file=sys.stderr, flush=True)
 
 
 def warn(args, text: str) -> None:
