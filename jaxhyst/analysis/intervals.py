@@ -51,8 +51,9 @@ _GRID = 4001
 NEAR_BOUND = 6.0
 
 
-def _phi(x):
-    return 0.5 * (1.0 + np.vectorize(math.erf)(np.asarray(x, float) / math.sqrt(2.0)))
+def _phi(x: float) -> float:
+    """The standard normal distribution function at the number ``x``."""
+    return 0.5 * (1.0 + math.erf(x / math.sqrt(2.0)))
 
 
 def _coverage_at(t, c):
