@@ -77,3 +77,71 @@ def meanwhile(work, *, wait: float = 20.0) -> Meanwhile | None:
     if jax.config.jax_disable_jit:
         return None
     return Meanwhile(work, wait)
+
+
+#: Per thread: what to call once a multi-start fit run there has settled (`when_settled`,
+#: `settled`).
+_ON_SETTLED = threading.local()
+
+
+class when_settled:
+    """Within the block, ``callback(cost)`` is called once, from the first multi-start
+    fit run in this thread whose best cost has settled (changed by less than
+    `jaxhyst.identify._stepped.SETTLED` of itself over a chunk of steps; ``cost``: that
+    cost) — while the fit goes on, so that a program its outcome decides (the profile
+    check's re-fits run only where the fit is not exact) can be compiled `meanwhile`."""
+
+    def __init__(self, callback):
+        self.callback = callback
+
+    def __enter__(self):
+        self.previous = getattr(_ON_SETTLED, "callback", None)
+        _ON_SETTLED.callback = self.callback
+        return self
+
+    def __exit__(self, *exc):
+        _ON_SETTLED.callback = self.previous
+        return False
+
+
+def settled(cost: float) -> None:
+    """Called by a multi-start fit whose best cost has settled: runs the callback of
+    `when_settled` (once; none outside such a block)."""
+    callback = getattr(_ON_SETTLED, "callback", None)
+    if callback is not None:
+        _ON_SETTLED.callback = None
+        callback(cost)
+
+
+#: Per thread: background work a later step of the caller waits for where it uses what
+#: the work compiles (`awaited`, `wait_for`).
+_AWAITED = threading.local()
+
+
+class awaited:
+    """Within the block, ``wait_for(name)`` joins ``work`` (a `Meanwhile`, or None: nothing
+    to wait for), so that the caller's steps before the one that uses its programs run
+    beside it; joined on the way out of the block in any case."""
+
+    def __init__(self, name: str, work: Meanwhile | None):
+        self.name, self.work = name, work
+
+    def __enter__(self):
+        if not hasattr(_AWAITED, "works"):
+            _AWAITED.works = {}
+        self.previous = _AWAITED.works.get(self.name)
+        _AWAITED.works[self.name] = self.work
+        return self
+
+    def __exit__(self, *exc):
+        _AWAITED.works[self.name] = self.previous
+        if self.work is not None:
+            self.work.join()
+        return False
+
+
+def wait_for(name: str) -> None:
+    """Join the background work `awaited` under ``name`` in this thread, if any."""
+    work = getattr(_AWAITED, "works", {}).get(name)
+    if work is not None:
+        work.join()

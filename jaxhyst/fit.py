@@ -10,8 +10,9 @@ import dataclasses
 import functools
 
 from . import identify
-from ._background import meanwhile
+from ._background import awaited, meanwhile, when_settled
 from .analysis.identifiability import compile_report, identifiability
+from .analysis.profile_intervals import REFITS, compile_refits
 from .identify.result import stopped_short
 from .identify.signal import sampling_error
 from .identify.summary import point_of
@@ -130,9 +131,36 @@ def _compile_report_meanwhile(problem, report, linearized: bool = False):
         if key is not None:
             _COMPILED[key] = done | needed
         # (not the profile check's re-fits: they run only where the fit is not exact,
-        # which is not known before it ends; compiled for nothing, they slow the fit)
+        # which is known once the fit's cost has settled — `_compile_refits_meanwhile`;
+        # compiled for nothing, they slow the fit)
 
     return meanwhile(work)
+
+
+#: A settled cost above this is not an exact fit (σ̂ over the data's size 1e-7 or
+#: more, where `identifiability` calls a fit exact at 1e-9): its report will re-fit.
+NOT_EXACT = 1e-14
+
+
+def _compile_refits_meanwhile(problem, first):
+    """Compile the profile check's re-fit program in a background thread (after
+    ``first``, the report's own background work, so that two compiles do not share the
+    cores with the fit), once per problem structure in a process; called once a
+    multi-start fit's best cost has settled above an exact fit's, so that an exact fit,
+    whose report re-fits nothing, compiles nothing for it."""
+    key = _structure(problem)
+    done = _COMPILED.get(key, set()) if key is not None else set()
+    if "refits" in done:
+        return None
+
+    def work():
+        if first is not None:
+            first.thread.join()
+        compile_refits(problem)
+        if key is not None:
+            _COMPILED[key] = _COMPILED.get(key, set()) | {"refits"}
+
+    return meanwhile(work, wait=0.0)
 
 
 def _linearized(args, kwargs) -> bool:
@@ -154,18 +182,34 @@ def _with_report(fn, linearized=lambda args, kwargs: False):
     @functools.wraps(fn)
     def wrapped(problem, *args, report: bool = True, **kwargs):
         background = _compile_report_meanwhile(problem, report, linearized(args, kwargs))
+        later = []  # (the profile's re-fits: once the fit shows it is not exact)
+
+        def settled(cost):
+            if report == "profile" and cost > NOT_EXACT:
+                later.append(_compile_refits_meanwhile(problem, background))
+
         try:
-            result = fn(problem, *args, **kwargs)
+            with when_settled(settled):
+                result = fn(problem, *args, **kwargs)
+        except BaseException:
+            for thread in later:
+                if thread is not None:
+                    thread.join()
+            raise
         finally:
             if background is not None:
                 background.join()
-        return attach_report(result, problem, report)
+        # (the re-fits compile beside the report's first part: the profile check waits
+        # for them, `profile_intervals.REFITS`)
+        with awaited(REFITS, later[0] if later else None):
+            return attach_report(result, problem, report)
 
     wrapped.__doc__ = (fn.__doc__ or "") + (
         "\n\n    ``report`` (keyword, default True): attach the identifiability report "
         "(``\"profile\"``: with intervals checked along the profile likelihood). The "
         "report's programs compile in a background thread while the fit runs (the first "
-        "time for a problem's structure; joined before this returns).")
+        "time for a problem's structure; joined before this returns); the profile's "
+        "re-fits there too, once a multi-start fit's cost has settled above an exact fit's.")
     return wrapped
 
 

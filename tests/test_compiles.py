@@ -219,6 +219,46 @@ def test_a_fits_report_compiles_in_a_thread_of_its_own_while_the_fit_runs():
     assert jh.fit._compile_report_meanwhile(problem, True, linearized=True) is None
 
 
+def _loop_problem(samples_per_period, noise):
+    from jaxhyst.identify.joint import NO_ACTUATOR
+
+    d = jh.sinusoidal_field(1.0, 90.0, 0.0, samples_per_period=samples_per_period)
+    sim = jh.simulate(SOFT, NO_ACTUATOR, d, jh.ClassicJA(), substeps=2)
+    B = np.asarray(d.observed(MU0 * (sim.H + sim.M)))
+    B = B + noise * np.max(np.abs(B)) * np.random.default_rng(3).standard_normal(B.shape)
+    box = jh.Bounds(SOFT.replace(a=10.0, k=5.0, c=0.05), SOFT.replace(a=100.0, k=60.0, c=0.9))
+    return jh.Problem(B, d, NO_ACTUATOR, jh.ParameterSpace(box, FIXED),
+                      output="flux_density", variant=jh.ClassicJA(), substeps=2)
+
+
+def test_the_profile_refits_compile_meanwhile_once_the_fits_cost_has_settled_inexactly():
+    """A multi-start fit with the profile-checked report compiles the check's re-fit
+    program in the background thread once its best cost has settled above an exact
+    fit's — once, not again for the report, which is the one the caller's
+    thread makes afterwards; a noise-free fit (exact: its report re-fits nothing)
+    compiles no re-fit program at all."""
+    from jaxhyst.analysis import identifiability
+
+    problem = _loop_problem(41, 1e-3)  # (shapes of their own)
+    near, far = SOFT.replace(a=31.0, k=19.0, c=0.31), SOFT.replace(a=90.0, k=55.0, c=0.8)
+    starts = jh.Parameters.from_array(np.stack([near.to_array(), far.to_array()]))
+    first = jh.multistart(problem, starts, max_steps=60, report=False)
+    # from its optimum (settled at once) and from afar (a batch that goes on)
+    starts = jh.Parameters.from_array(np.stack([first.params.to_array(), far.to_array()]))
+    with counting() as compiled:
+        res = jh.multistart(problem, starts, max_steps=60, report="profile")
+    assert compiled.threads.get("jit(_held_costs)") == {"jaxhyst-compile-meanwhile"}, \
+        compiled.threads
+    assert sum(n.startswith("Compiling jit(_held_costs) ") for n in compiled.names) == 1
+    assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-meanwhile"]
+    assert res.report.intervals == identifiability(problem, res.params).intervals
+    exact = _loop_problem(43, 0.0)
+    with counting() as compiled:
+        res = jh.multistart(exact, starts, max_steps=60, report="profile")
+    assert res.cost < jh.fit.NOT_EXACT and res.report is not None
+    assert "jit(_held_costs)" not in compiled.threads, compiled.threads
+
+
 def test_the_profile_checks_refits_take_their_tolerance_as_a_value(monkeypatch):
     """The profile check's re-fits stop at rtol = `profile_intervals.PRECISION` over the
     fit's χ² (at most ``RE_FIT_TOLERANCES[0]``), a value passed to their program: a second

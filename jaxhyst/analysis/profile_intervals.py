@@ -45,6 +45,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._background import wait_for
 from ..identify import solve_traced
 from ..identify.problem import cost_at
 from ..identify.result import stopped_short
@@ -71,6 +72,9 @@ STEPS = 40
 RE_FIT_TOLERANCES = (1e-5, 1e-12)
 #: The precision (in Δχ²) a re-fit's cost is wanted to: far below `TOLERANCE`·3.84.
 PRECISION = 0.01
+#: The name under which a fit's background compile of the re-fit program is awaited
+#: (`jaxhyst._background.awaited`): the check waits for it before its first re-fit.
+REFITS = "profile re-fits"
 #: A re-fit this far below the fit's cost (in Δχ²; and by more than `stopped_short`'s
 #: 1e-6 of the cost) shows that the fit is not the minimum.
 LOWER = 0.1
@@ -108,6 +112,24 @@ def _refit(problem, solver, lowers, uppers, z0s, max_steps, size, idx):
     c_, z_ = _held_costs(problem, solver, jnp.asarray(lowers[fill]), jnp.asarray(uppers[fill]),
                          jnp.asarray(z0s[fill]), max_steps)
     return idx, np.asarray(c_)[:idx.size], np.asarray(z_)[:idx.size]
+
+
+def _refit_solver(solver: str, rtol: float):
+    """The re-fits' solver, its rtol a value of their program (one program whatever the
+    rtol)."""
+    return make_solver(solver, jnp.asarray(rtol), RE_FIT_TOLERANCES[1])
+
+
+def compile_refits(problem, solver: str = "lm", max_steps: int = STEPS) -> None:
+    """Compile (not run) the re-fit program `refine_intervals` runs for ``problem``, on
+    inputs of its shapes, so that it is compiled before the check needs it:
+    `jaxhyst.fit` does this in a background thread once a fit's cost has settled above
+    an exact fit's."""
+    size = _chunk(2 * problem.space.n_free)
+    lower, upper = (jnp.asarray(np.tile(np.asarray(b, float), (size, 1)))
+                    for b in (problem.space.lower, problem.space.upper))
+    _held_costs.lower(problem, _refit_solver(solver, RE_FIT_TOLERANCES[0]), lower, upper,
+                      jnp.zeros_like(lower), max_steps).compile()
 
 
 @eqx.filter_jit
@@ -163,6 +185,7 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
             ends.append((i, side, bool((lower[i] > 0 or upper[i] < 0) and x_hat[i] != 0)))
     if not ends:
         return {}
+    wait_for(REFITS)  # (the re-fit program, where a fit compiles it in the background)
     se = np.sqrt(np.diag(C)) * np.abs(scale)  # (SI)
     positive = ((lower > 0) | (upper < 0)) & (x_hat != 0)
 
@@ -189,8 +212,8 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
     done = np.zeros(len(ends), bool)
     ratio_first = np.full(len(ends), np.nan)
     unbounded = {}
-    rtol = min(RE_FIT_TOLERANCES[0], PRECISION / max(cost0 / sigma2, 1.0))
-    solver_ = make_solver(solver, jnp.asarray(rtol), RE_FIT_TOLERANCES[1])
+    solver_ = _refit_solver(solver, min(RE_FIT_TOLERANCES[0],
+                                        PRECISION / max(cost0 / sigma2, 1.0)))
     B = len(ends)
 
     def on_path(i, logs, v):

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from .._background import settled as _settled
 from ..model.simulate import plain_vmap
 from ._objective import objective
 from .problem import AbstractProblem
@@ -36,6 +37,9 @@ from .result import RESULTS
 from .solvers import accepted_jacobian, accepted_residuals, final_step_size
 
 _TAGS = frozenset()
+#: A batch's best cost has settled where a chunk of steps changed it by less than this
+#: fraction of itself.
+SETTLED = 1e-4
 
 
 def _terminate(solver, fn, y, options, state):
@@ -227,6 +231,7 @@ class SteppedSolve:
         with self.tracing():
             self.state, self.static = _init_batch(problem, solver, np.asarray(z0s))
         self.chunk, self.costs, self.started = 1, None, time.perf_counter()
+        self.best_before = None  # (the best cost at the last check: `_settling`)
         self.linearizations = None
 
     def done(self, carry) -> bool:
@@ -238,6 +243,7 @@ class SteppedSolve:
             return False
         steps, costs = np.asarray(carry[1]), np.asarray(self.costs, dtype=np.float64)
         self.history.append((steps, costs))
+        self._settling(costs)
         converged = converged & np.isfinite(costs)
         best = best_start(costs, ~converged)  # (a converged start first at equal cost)
         if not converged[best]:
@@ -249,6 +255,17 @@ class SteppedSolve:
             self.overtaken = run
             return True
         return False
+
+    def _settling(self, costs) -> None:
+        """Say (`jaxhyst._background.settled`) once the batch's best cost has changed by
+        less than `SETTLED` of itself over a chunk of steps: what waits for the fit's
+        outcome may then start while the fit ends."""
+        finite = costs[np.isfinite(costs)]
+        if finite.size:
+            now, before = float(np.min(finite)), self.best_before
+            if before is not None and abs(before - now) <= SETTLED * now:
+                _settled(now)
+            self.best_before = now
 
     def advance(self, carry):
         t0 = time.perf_counter()
