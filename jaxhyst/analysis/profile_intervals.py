@@ -50,7 +50,7 @@ from ..identify import solve_traced
 from ..identify.problem import cost_at
 from ..identify.result import stopped_short
 from ..identify.solvers import make_solver
-from ..identify.space import u_from_z, z_from_u
+from ..identify.space import u_from_z_host, z_from_u_host
 from ..identify.summary import free_values_of
 from .intervals import critical_value, held_at_bounds, path_point
 from .wording import Z95
@@ -167,7 +167,8 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
     x_hat = np.asarray(free_values_of(space, params), dtype=float)
     lower, upper = np.asarray(space.lower, float), np.asarray(space.upper, float)
     scale = np.asarray(report.scale, float)
-    cost0 = float(cost_at(problem, space.z_from_params(params)))
+    box = np.where(upper > lower, upper - lower, 1.0)
+    cost0 = float(cost_at(problem, z_from_u_host(np.clip((x_hat - lower) / box, 0.0, 1.0))))
     sigma2 = _noise_variance(problem, cost0, inflation)
     held = [names.index(n) for n in (report.at_bound or {})]
     C = held_at_bounds(np.asarray(report.cov_log, float), held)
@@ -245,7 +246,7 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
                 x0 = last_x[k] + x0 - on_path(i, logs, last_v[k])
             x0 = np.clip(x0, lowers[k], uppers[k])
             width = np.where(uppers[k] > lowers[k], uppers[k] - lowers[k], 1.0)
-            z0s[k] = np.asarray(z_from_u(np.clip((x0 - lowers[k]) / width, 0.0, 1.0)))
+            z0s[k] = z_from_u_host(np.clip((x0 - lowers[k]) / width, 0.0, 1.0))
         # only the ends not yet found are re-fitted (a round that has one end left runs
         # one re-fit, not every end again), `_chunk()` at a time (the rest copies of the
         # first: one program whatever the number of ends), side by side on the CPU's
@@ -259,7 +260,7 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
         first = 0 if round_ else 1  # (the program compiles in this thread, once)
         for idx, c_, z_ in [*map(refit, chunks[:first]), *_side_by_side(refit, chunks[first:])]:
             costs[idx], zs[idx] = c_, z_
-        x_run = lowers[run] + (uppers[run] - lowers[run]) * np.asarray(u_from_z(zs[run]))
+        x_run = lowers[run] + (uppers[run] - lowers[run]) * u_from_z_host(zs[run])
         x_run[~np.isfinite(costs[run])] = np.nan  # (a failed re-fit: the path again)
         last_x[run], last_v[run] = x_run, values[run]
         drop = (cost0 - costs) / sigma2
