@@ -234,14 +234,19 @@ def _loop_problem(samples_per_period, noise):
 def test_the_profile_refits_compile_meanwhile_once_the_fits_cost_has_settled_inexactly():
     """A multi-start fit with the profile-checked report compiles the check's re-fit
     program in the background thread once its best cost has settled above an exact
-    fit's — once, not again for the report, which is the one the caller's
-    thread makes afterwards; a noise-free fit (exact: its report re-fits nothing)
-    compiles no re-fit program at all."""
+    fit's — once, not again for the report, which is the one the caller's thread makes
+    afterwards; a noise-free fit (exact: its report re-fits nothing) compiles no re-fit
+    program at all."""
     from jaxhyst.analysis import identifiability
 
-    problem = _loop_problem(41, 1e-3)  # (shapes of their own)
     near, far = SOFT.replace(a=31.0, k=19.0, c=0.31), SOFT.replace(a=90.0, k=55.0, c=0.8)
     starts = jh.Parameters.from_array(np.stack([near.to_array(), far.to_array()]))
+    exact = _loop_problem(41, 0.0)  # (shapes of their own)
+    with counting() as compiled:
+        res = jh.multistart(exact, starts, max_steps=60, report="profile")
+    assert res.cost < jh.fit.NOT_EXACT and res.report is not None
+    assert "jit(_held_costs)" not in compiled.threads, compiled.threads
+    problem = _loop_problem(41, 1e-3)  # (the same shapes, noisy data)
     first = jh.multistart(problem, starts, max_steps=60, report=False)
     # from its optimum (settled at once) and from afar (a batch that goes on)
     starts = jh.Parameters.from_array(np.stack([first.params.to_array(), far.to_array()]))
@@ -252,11 +257,6 @@ def test_the_profile_refits_compile_meanwhile_once_the_fits_cost_has_settled_ine
     assert sum(n.startswith("Compiling jit(_held_costs) ") for n in compiled.names) == 1
     assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-meanwhile"]
     assert res.report.intervals == identifiability(problem, res.params).intervals
-    exact = _loop_problem(43, 0.0)
-    with counting() as compiled:
-        res = jh.multistart(exact, starts, max_steps=60, report="profile")
-    assert res.cost < jh.fit.NOT_EXACT and res.report is not None
-    assert "jit(_held_costs)" not in compiled.threads, compiled.threads
 
 
 def test_the_profile_checks_refits_take_their_tolerance_as_a_value(monkeypatch):

@@ -175,6 +175,14 @@ def test_sine_map_keeps_every_z_inside_the_box():
     lo = np.asarray(jh.TABLE1_BOUNDS.lower.to_array())
     hi = np.asarray(jh.TABLE1_BOUNDS.upper.to_array())
     assert np.all(theta >= lo) and np.all(theta <= hi)
+    # the same map of host values by NumPy (the profile check's: no program)
+    from jaxhyst.identify.space import z_from_u
+    from jaxhyst.identify.summary import u_from_z_host, z_from_u_host
+
+    np.testing.assert_allclose(u_from_z_host(np.asarray(z)), np.asarray(u), rtol=0, atol=1e-15)
+    back = np.linspace(-0.1, 1.1, 241)
+    np.testing.assert_allclose(z_from_u_host(back), np.asarray(z_from_u(back)), rtol=0,
+                               atol=1e-15)
 
 
 def test_spaces_round_trip_for_parameters_loops_and_any_pytree():

@@ -50,8 +50,7 @@ from ..identify import solve_traced
 from ..identify.problem import cost_at
 from ..identify.result import stopped_short
 from ..identify.solvers import make_solver
-from ..identify.space import u_from_z_host, z_from_u_host
-from ..identify.summary import free_values_of
+from ..identify.summary import free_values_of, u_from_z_host, z_from_u_host
 from .intervals import critical_value, held_at_bounds, path_point
 from .wording import Z95
 

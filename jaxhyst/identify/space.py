@@ -42,17 +42,6 @@ def z_from_u(u: Float[ArrayLike, "*batch n"]) -> Float[Array, "*batch n"]:
     return jnp.arcsin(jnp.clip(2.0 * jnp.asarray(u) - 1.0, -1.0, 1.0))
 
 
-def u_from_z_host(z) -> np.ndarray:
-    """`u_from_z` of host values, by NumPy (no program: op by op, each JAX operation on a
-    new shape compiles one of its own)."""
-    return 0.5 * (1.0 + np.sin(np.asarray(z, dtype=np.float64)))
-
-
-def z_from_u_host(u) -> np.ndarray:
-    """`z_from_u` of host values, by NumPy (see `u_from_z_host`)."""
-    return np.arcsin(np.clip(2.0 * np.asarray(u, dtype=np.float64) - 1.0, -1.0, 1.0))
-
-
 def _leaf_name(path) -> str:
     """A readable name for a pytree path: ``Ms``, ``coil.R``, ``gains[2]``."""
     parts = []

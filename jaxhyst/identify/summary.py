@@ -31,6 +31,17 @@ def _stats(groups, residuals):
     return out, float(np.sqrt(np.mean(e**2))), float(np.max(np.abs(e))), float(np.sum(e**2))
 
 
+def u_from_z_host(z) -> np.ndarray:
+    """`jaxhyst.identify.space.u_from_z` of host values, by NumPy (no program: op by op,
+    each JAX operation on a new shape compiles one of its own)."""
+    return 0.5 * (1.0 + np.sin(np.asarray(z, dtype=np.float64)))
+
+
+def z_from_u_host(u) -> np.ndarray:
+    """`jaxhyst.identify.space.z_from_u` of host values, by NumPy (`u_from_z_host`)."""
+    return np.arcsin(np.clip(2.0 * np.asarray(u, dtype=np.float64) - 1.0, -1.0, 1.0))
+
+
 @eqx.filter_jit
 def point_of(space, z):
     """(free values in SI, parameter pytree) at the solver coordinate z."""
