@@ -131,7 +131,7 @@ def _compile_report_meanwhile(problem, report, linearized: bool = False):
         if key is not None:
             _COMPILED[key] = done | needed
         # (not the profile check's re-fits: they run only where the fit is not exact,
-        # which is known once the fit's cost has settled — `_compile_refits_meanwhile`;
+        # which is known once the fit's cost has settled — `refits_meanwhile`;
         # compiled for nothing, they slow the fit)
 
     return meanwhile(work)
@@ -142,12 +142,14 @@ def _compile_report_meanwhile(problem, report, linearized: bool = False):
 NOT_EXACT = 1e-14
 
 
-def _compile_refits_meanwhile(problem, first):
+def refits_meanwhile(problem, first=None, now: bool = True):
     """Compile the profile check's re-fit program in a background thread (after
-    ``first``, the report's own background work, so that two compiles do not share the
-    cores with the fit), once per problem structure in a process; called once a
-    multi-start fit's best cost has settled above an exact fit's, so that an exact fit,
-    whose report re-fits nothing, compiles nothing for it."""
+    ``first``, other background work, so that two compiles do not share the cores with
+    the fit), once per problem structure in a process; a fit calls this once its best
+    cost has settled above an exact fit's (so that an exact fit, whose report re-fits
+    nothing, compiles nothing for it), ``jaxhyst report`` for a result that is not exact.
+    ``now``: start at once, else once the caller has lowered its next large program.
+    The caller that runs the check holds it `awaited` under ``REFITS``."""
     key = _structure(problem)
     done = _COMPILED.get(key, set()) if key is not None else set()
     if "refits" in done:
@@ -160,7 +162,7 @@ def _compile_refits_meanwhile(problem, first):
         if key is not None:
             _COMPILED[key] = _COMPILED.get(key, set()) | {"refits"}
 
-    return meanwhile(work, wait=0.0)
+    return meanwhile(work, wait=0.0) if now else meanwhile(work)
 
 
 def _linearized(args, kwargs) -> bool:
@@ -186,7 +188,7 @@ def _with_report(fn, linearized=lambda args, kwargs: False):
 
         def settled(cost):
             if report == "profile" and cost > NOT_EXACT:
-                later.append(_compile_refits_meanwhile(problem, background))
+                later.append(refits_meanwhile(problem, background))
 
         try:
             with when_settled(settled):

@@ -259,6 +259,27 @@ def test_the_profile_refits_compile_meanwhile_once_the_fits_cost_has_settled_ine
     assert res.report.intervals == identifiability(problem, res.params).intervals
 
 
+def test_a_reports_profile_refits_compile_beside_its_jacobian():
+    """What ``jaxhyst report`` does for a fit that is not exact: the profile check's
+    re-fit program compiles in the background thread (`fit.refits_meanwhile`, started at
+    the report's first large lowering) while the report's Jacobian compiles, and the
+    check waits for it (`_background.awaited`): compiled once, there; the same report."""
+    from jaxhyst._background import awaited
+    from jaxhyst.analysis import identifiability
+    from jaxhyst.analysis.profile_intervals import REFITS
+
+    problem, _ = exponential_problem(0.7)  # (a residual function of its own: new programs)
+    fit = jh.solve(problem, {"b": 0.4, "m": 0.1}, solver="lm", report=False)
+    with counting() as compiled:
+        with awaited(REFITS, jh.fit.refits_meanwhile(problem, now=False)):
+            report = identifiability(problem, fit.params)
+    assert compiled.threads.get("jit(_held_costs)") == {"jaxhyst-compile-meanwhile"}, \
+        compiled.threads
+    assert sum(n.startswith("Compiling jit(_held_costs) ") for n in compiled.names) == 1
+    assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-meanwhile"]
+    assert report.intervals == identifiability(problem, fit.params).intervals
+
+
 def test_the_profile_checks_refits_take_their_tolerance_as_a_value(monkeypatch):
     """The profile check's re-fits stop at rtol = `profile_intervals.PRECISION` over the
     fit's χ² (at most ``RE_FIT_TOLERANCES[0]``), a value passed to their program: a second
