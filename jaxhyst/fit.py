@@ -142,14 +142,17 @@ def _compile_report_meanwhile(problem, report, linearized: bool = False):
 NOT_EXACT = 1e-14
 
 
-def refits_meanwhile(problem, first=None, now: bool = True):
+def refits_meanwhile(problem, cost, first=None, now: bool = True):
     """Compile the profile check's re-fit program in a background thread (after
     ``first``, other background work, so that two compiles do not share the cores with
-    the fit), once per problem structure in a process; a fit calls this once its best
-    cost has settled above an exact fit's (so that an exact fit, whose report re-fits
-    nothing, compiles nothing for it), ``jaxhyst report`` for a result that is not exact.
-    ``now``: start at once, else once the caller has lowered its next large program.
-    The caller that runs the check holds it `awaited` under ``REFITS``."""
+    the fit), once per problem structure in a process, where the fit's ``cost`` is above
+    an exact fit's (`NOT_EXACT`: an exact fit's report re-fits nothing, so nothing is
+    compiled for it); else None. A fit calls this once its best cost has settled,
+    ``jaxhyst report`` with the result's cost. ``now``: start at once, else once the
+    caller has lowered its next large program. The caller that runs the check holds it
+    `awaited` under ``REFITS``."""
+    if not cost > NOT_EXACT:
+        return None
     key = _structure(problem)
     done = _COMPILED.get(key, set()) if key is not None else set()
     if "refits" in done:
@@ -187,8 +190,8 @@ def _with_report(fn, linearized=lambda args, kwargs: False):
         later = []  # (the profile's re-fits: once the fit shows it is not exact)
 
         def settled(cost):
-            if report == "profile" and cost > NOT_EXACT:
-                later.append(refits_meanwhile(problem, background))
+            if report == "profile":
+                later.append(refits_meanwhile(problem, cost, background))
 
         try:
             with when_settled(settled):

@@ -36,15 +36,15 @@ def run(args) -> int:
     from jaxhyst._background import awaited
     from jaxhyst.analysis import identifiability, profile_likelihood
     from jaxhyst.analysis.profile_intervals import REFITS
-    from jaxhyst.fit import NOT_EXACT, refits_meanwhile
+    from jaxhyst.fit import refits_meanwhile
 
     check_outputs(args)
     saved, _, problem, params = (load_model_fit if is_model_file(args.result)
                                  else load_result)(args.result)
     cost = saved.get("cost") if isinstance(saved, dict) else None
     # (the profile check's re-fits compile beside the Jacobian where the fit is not exact)
-    refits = refits_meanwhile(problem, now=False) if isinstance(cost, (int, float)) and \
-        cost > NOT_EXACT else None
+    refits = refits_meanwhile(problem, cost, now=False) if isinstance(cost, (int, float)) \
+        else None
     with awaited(REFITS, refits):
         rep = identifiability(problem, params, max_rel_se=args.max_rel_se)
     summary = {"identifiability": rep.to_dict(), "suggest_fixed": list(rep.suggest_fixed())}
