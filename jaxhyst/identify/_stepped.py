@@ -8,8 +8,8 @@ static part of the state is the initial one, a solve that did not terminate by i
 reports ``nonlinear_max_steps_reached``); a test checks both give the same iterates. It
 is used two ways:
 
-- **traced whole** (`solve_traced`): one solve inside a compiled program — a hybrid's
-  local search inside each generation, replicate fits vmapped over data sets;
+- **traced whole** (`solve_traced`): one solve inside a compiled program — replicate
+  fits vmapped over data sets, the profile's re-fits;
 - **stepped from the host** (`SteppedSolve`): a vmapped batch of starts advanced a chunk
   of steps per dispatch by the one driver (`jaxhyst._driver`), which reports
   progress and honours interruption between chunks. Nothing in the compiled programs
@@ -211,8 +211,9 @@ class SteppedSolve:
     """A vmapped batch of solves from the starts ``z0s`` (K, n), advanced from the host a
     chunk of steps per dispatch (each dispatch kept near a quarter second): what the
     driver runs for `jaxhyst.identify.solve`, ``multistart`` and a hybrid's final
-    solves. ``state`` is the batch's carry; `advance`, `done` and `describe` are the
-    driver's three questions; `outputs` ends the solves.
+    solves (and, in one dispatch, a hybrid's local search inside a generation).
+    ``state`` is the batch's carry; `advance`, `done` and `describe` are the driver's
+    three questions; `outputs` ends the solves.
 
     A batch of several starts ends once a start has converged below every other's cost
     and none of the others can catch up (`left_behind`); those are reported

@@ -16,12 +16,12 @@ descent with a search — GATR1 and GALM1 differ in one field:
 (population sizes, bits, elites, local steps, carry-over, sharding) are static; the
 numbers a generation only reads (T1, T2, pc, pm, β, c1) and the step limits of the final
 solves (T3, check_steps) are arrays, so that new values compile nothing. Its methods are
-``init`` (the first `GAState`), ``step`` (one generation: a pure function state →
-(state, record), compiled once, shared by hybrids equal in what it uses; population
-evaluation in one vmapped batch, sharded over devices with no communication when there
-are several, the local search, selection and reproduction all inside), ``terminate`` and
-``postprocess`` (the ``after`` placement's solve and the convergence check, stepped by
-the one driver).
+``init`` (the first `GAState`), ``step`` (one generation, state → (state, record): the
+population's costs in one vmapped batch, sharded over devices with no communication when
+there are several; the ``inside`` local search by the programs of a stepped solve, which
+the ``after`` placement's solve shares; selection and reproduction — each program shared
+by every hybrid of equal settings), ``terminate`` and ``postprocess`` (the ``after``
+placement's solve and the convergence check, stepped by the one driver).
 `jaxhyst.identify.run.run_hybrid` drives it.
 
 Choices (documented in docs/identification.md):
@@ -52,7 +52,7 @@ from .._driver import DONE, STOPPED, drive
 from .._interrupt import stop_requested
 from ..names import HYBRID_NAMES
 from ..sharding import map_sharded, shardable, vmap_blocked
-from ._stepped import SteppedSolve, solve_traced
+from ._stepped import SteppedSolve
 from .ga import GAState, bcga_offspring, decode, fcga_offspring
 from .problem import AbstractProblem, cost_at
 from .result import RESULTS, member, outcome_name
@@ -184,18 +184,41 @@ class HybridGA(eqx.Module):
                        last_local_u=jnp.zeros((n,), f64), has_last_local=jnp.asarray(False))
 
     def step(self, problem: AbstractProblem, state: GAState) -> tuple[GAState, dict]:
-        """One generation (BCGA while i ≤ T1, then FCGA): (new state, record)."""
-        bcga = int(state.generation) < int(self.T1)
-        return (_bcga_generation if bcga else _fcga_generation)(
-            problem, self._as_generation_sees_it(bcga), state)
+        """One generation (BCGA while i ≤ T1, then FCGA): (new state, record). An FCGA
+        generation is three programs — the population's costs, the ``inside`` local
+        search (the programs of a stepped solve of one start, which the ``after``
+        placement's solve shares), selection and reproduction — each shared by every
+        hybrid that runs it."""
+        seen = self._as_generation_sees_it()
+        if int(state.generation) < int(self.T1):
+            return _bcga_generation(problem, seen, state)
+        costs, bad = _fcga_costs(problem, state.U, self.shard)
+        return _fcga_generation(problem, seen, state, costs, bad,
+                                self._local_search(problem, state, costs))
 
-    def _as_generation_sees_it(self, bcga: bool) -> HybridGA:
-        """Itself without what its generation does not use — the name; the local search
-        but in an ``inside`` FCGA generation — so that equal generations share programs."""
-        if not bcga and self.local_solver is not None and self.placement == "inside" \
-                and self.local_steps:
-            return HybridGA(self.local_solver, "inside", "GA", **self.settings())
+    def _as_generation_sees_it(self) -> HybridGA:
+        """Itself without what a generation's programs do not use (the name, the local
+        search, its placement), so that every hybrid of equal settings shares them."""
         return HybridGA(None, "inside", "GA", **{**self.settings(), "local_steps": 0})
+
+    def _local_search(self, problem: AbstractProblem, state: GAState, costs) -> tuple:
+        """The ``inside`` placement's search from the generation's best individual
+        (``local_steps`` steps), skipped where the last search converged at that very
+        point: (ran, skipped, z, result, steps, cost, final step size) as host values
+        (NaN cost and step size where none ran)."""
+        if self.local_solver is None or self.placement != "inside" or not self.local_steps:
+            return _as_local(False, False, np.zeros(np.shape(state.U)[1]), RESULTS.successful,
+                             0, np.nan, np.nan)
+        costs, U = np.asarray(costs), np.asarray(state.U)
+        best = int(np.argmin(costs))
+        z0 = np.asarray(_z_from_u(U[best]))
+        if bool(state.has_last_local) and np.array_equal(U[best], np.asarray(state.last_local_u)):
+            return _as_local(False, True, z0, RESULTS.successful, 0, costs[best], np.nan)
+        solver = with_initial_step_size(self.local_solver, state.step_size)
+        run = SteppedSolve(problem, solver, z0[None], self.local_steps, with_cost=True)
+        run.chunk = self.local_steps
+        z, results, steps, cost, final, _ = run.outputs(run.advance(run.state))
+        return _as_local(True, False, z[0], member(results, 0), steps[0], cost[0], final[0])
 
     def terminate(self, state: GAState) -> bool:
         """Whether every generation is done."""
@@ -343,47 +366,43 @@ def _bcga_generation(problem, method: HybridGA, state: GAState):
     return new, _record(new, costs, fitness, _no_local(jnp.min(costs)))
 
 
+def _as_local(ran, skipped, z, result, steps, cost, final) -> tuple:
+    """A local search's outcome in fixed dtypes (one program whether a search ran or not)."""
+    return (np.asarray(ran, bool), np.asarray(skipped, bool), np.asarray(z, np.float64),
+            jax.tree.map(lambda v: np.asarray(v, np.int32), result),
+            np.asarray(steps, np.int64), np.asarray(cost, np.float64),
+            np.asarray(final, np.float64))
+
+
 @eqx.filter_jit
-def _fcga_generation(problem, method: HybridGA, state: GAState):
-    """One FCGA generation (i > T1): evaluate, run the local search from the best
-    (``inside`` placement), keep the best, reproduce."""
+def _fcga_costs(problem, U, shard: bool):
+    """The FCGA population's costs (non-finite → +inf) and which were not finite."""
+    costs = _evaluate(problem, U, shard)
+    bad = ~jnp.isfinite(costs)
+    return jnp.where(bad, jnp.inf, costs), bad
+
+
+@eqx.filter_jit
+def _fcga_generation(problem, method: HybridGA, state: GAState, costs, bad, local):
+    """One FCGA generation (i > T1) after its population's costs and local search
+    (`HybridGA._local_search`): the searched point replaces the best individual where it
+    is no worse; keep the best, reproduce."""
     i = state.generation + 1
     T = method.T1 + method.T2
     population = state.U
-    costs = _evaluate(problem, population, method.shard)
-    bad = ~jnp.isfinite(costs)
-    costs = jnp.where(bad, jnp.inf, costs)
     best = jnp.argmin(costs)
-    local = _no_local(costs[best])
-    step_size, last_u, has_last = state.step_size, state.last_local_u, state.has_last_local
-    local_steps = state.local_steps
-    if method.local_solver is not None and method.placement == "inside" and method.local_steps:
-        unchanged = has_last & jnp.all(population[best] == last_u)
-
-        def search(_):
-            solver = with_initial_step_size(method.local_solver, step_size)
-            z, result, steps, cost, final = solve_traced(
-                problem, solver, z_from_u(population[best]), method.local_steps)
-            return z, result, steps.astype(jnp.int64), cost, jnp.asarray(final, float)
-
-        def skip(_):
-            return (z_from_u(population[best]), RESULTS.successful,
-                    jnp.asarray(0, jnp.int64), costs[best], jnp.asarray(step_size, float))
-
-        z, result, steps, cost, final = jax.lax.cond(unchanged, skip, search, None)
-        improved = jnp.isfinite(cost) & (cost <= costs[best]) & ~unchanged
-        population = jnp.where(improved, population.at[best].set(u_from_z(z)), population)
-        costs = jnp.where(improved, costs.at[best].set(cost), costs)
-        if method.carry_over:
-            step_size = jnp.where(~unchanged & jnp.isfinite(final) & (final > 0), final,
-                                  step_size)
-        converged = result == RESULTS.successful
-        last_u = jnp.where(unchanged, last_u, population[best])
-        has_last = jnp.where(unchanged, has_last, converged)
-        local_steps = local_steps + steps
-        local = {"local_ran": ~unchanged, "local_skipped": unchanged, "local_result": result,
-                 "local_steps": steps, "local_cost_before": local["local_cost_before"],
-                 "local_cost_after": cost}
+    ran, skipped, z, result, steps, cost, final = local
+    before = costs[best]
+    improved = ran & jnp.isfinite(cost) & (cost <= costs[best])
+    population = jnp.where(improved, population.at[best].set(u_from_z(z)), population)
+    costs = jnp.where(improved, costs.at[best].set(cost), costs)
+    step_size = state.step_size
+    if method.carry_over:
+        step_size = jnp.where(ran & jnp.isfinite(final) & (final > 0), final, step_size)
+    last_u = jnp.where(ran, population[best], state.last_local_u)
+    has_last = jnp.where(ran, result == RESULTS.successful, state.has_last_local)
+    local = {"local_ran": ran, "local_skipped": skipped, "local_result": result,
+             "local_steps": steps, "local_cost_before": before, "local_cost_after": cost}
     fitness = problem.fitness_from_cost(costs, method.c1)
     best_u, best_cost = _update_best(state, population, costs)
     key, k = jax.random.split(state.key)
@@ -396,5 +415,6 @@ def _fcga_generation(problem, method: HybridGA, state: GAState):
                     st.failures, st.local_steps, st.step_size, st.last_local_u,
                     st.has_last_local),
         state, (key, U, i, best_u, best_cost, state.evaluations + population.shape[0],
-                state.failures + jnp.sum(bad), local_steps, step_size, last_u, has_last))
+                state.failures + jnp.sum(bad), state.local_steps + steps, step_size,
+                last_u, has_last))
     return new, _record(new, costs, fitness, local)
