@@ -52,9 +52,9 @@ from .._driver import DONE, STOPPED, drive
 from .._interrupt import stop_requested
 from ..names import HYBRID_NAMES
 from ..sharding import map_sharded, shardable, vmap_blocked
-from ._stepped import SteppedSolve
+from ._stepped import SteppedSolve, evaluate_at
 from .ga import GAState, bcga_offspring, decode, fcga_offspring
-from .problem import AbstractProblem, cost_at
+from .problem import AbstractProblem
 from .result import RESULTS, member, outcome_name
 from .solvers import initial_step_size, make_solver, solver_name, with_initial_step_size
 from .space import u_from_z, z_from_u
@@ -250,7 +250,7 @@ class HybridGA(eqx.Module):
             return z, outcome or RESULTS.nonlinear_max_steps_reached, info, DONE
         if stop_requested():  # stopped before the check began
             return z, RESULTS.interrupted, info, STOPPED
-        before = float(cost_at(problem, z))
+        before = float(evaluate_at(problem, z)[0])  # (the program a stepped solve has)
         found, how = _final_solve(problem, make_solver("lm"), z, int(self.check_steps), meter,
                                   f"{self.name} check")
         info["convergence_check"] = {"result": found["result"], "steps": found["steps"],
