@@ -333,6 +333,37 @@ def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
     assert "3 the fit stopped" in " ".join(helps.split())
 
 
+def test_the_console_command_flushes_its_output_and_keeps_its_exit_status(tmp_path):
+    """``python -m jaxhyst.cli`` (the console script's entry, `jaxhyst.cli.main.command`)
+    ends without the interpreter's teardown: what it printed and wrote is all there, and
+    its status is main's — 0 done, 2 for a bad input with its one line."""
+    import subprocess
+    import sys
+
+    def run(*argv):
+        return subprocess.run([sys.executable, "-m", "jaxhyst.cli", *argv], cwd=tmp_path,
+                              capture_output=True, text=True,
+                              env={**os.environ, "JAXHYST_CACHE_DIR": "off"})
+
+    done = run("simulate", "--samples-per-period", "20", "--substeps", "8", "--csv",
+               "sim.csv")
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.rstrip().endswith("wrote sim.csv"), done.stdout
+    rows = (tmp_path / "sim.csv").read_text().splitlines()
+    assert len(rows) > 20 and rows[-1].count(",") == rows[0].count(",")
+    bad = run("identify", "missing.csv")
+    assert bad.returncode == 2 and bad.stdout == ""
+    assert bad.stderr.count("\n") == 1 and "does not exist" in bad.stderr, bad.stderr
+    # a command's unflushed output (print buffers a pipe's) and a status of its own
+    stub = subprocess.run([sys.executable, "-c", "import sys, jaxhyst.cli.main; "
+                           "m = sys.modules['jaxhyst.cli.main']; "
+                           "m.main = lambda: (print('x' * 1000, end=''), 3)[1]; "
+                           "m.command()"], capture_output=True, text=True,
+                          env={k: v for k, v in os.environ.items()  # (stdout buffered)
+                               if k != "PYTHONUNBUFFERED"})
+    assert stub.returncode == 3 and stub.stdout == "x" * 1000
+
+
 def test_ctrl_c_twice_during_compilation_exits_at_once(tmp_path):
     """The first SIGINT is acknowledged even while XLA compiles (the CLI's work runs in a
     worker thread), the second ends the process at once with status 130."""

@@ -1,7 +1,5 @@
 """``python -m jaxhyst.cli``: the ``jaxhyst`` command."""
 
-import sys
+from .main import command
 
-from .main import main
-
-sys.exit(main())
+command()
