@@ -357,11 +357,13 @@ def test_hybrids_share_their_generations_and_the_local_solvers_programs(caplog):
     """The generation programs leave out the local solver, its placement and the name,
     so the plain GA after GATR1 compiles nothing; GATR1's inside search runs the
     programs of a stepped solve of one start, which GATR2's ``after`` solve (the same
-    solver) shares: GATR2 then compiles nothing, nor does a renamed GATR1. (A problem
-    of its own length, so that no other test has compiled these programs.)"""
+    solver) shares: GATR2 then compiles nothing, nor does a renamed GATR1. (A small
+    B(H) loop of its own length, so that no other test has compiled these programs.)"""
     import logging
 
-    problem, settings = table1_problem(spp=23), {**TINY, "check_steps": 0}
+    H = 100 * np.cos(2 * np.pi * np.arange(37) / 37)
+    B = 0.3 * np.tanh((H + 10 * np.sign(np.gradient(-H))) / 30)
+    problem, settings = jh.loop_problem(H, B), {**TINY, "check_steps": 0}
 
     def compiled(method):
         caplog.clear()
