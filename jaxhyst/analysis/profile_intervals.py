@@ -113,6 +113,14 @@ def _refit(problem, solver, lowers, uppers, z0s, max_steps, size, idx):
     return idx, np.asarray(c_)[:idx.size], np.asarray(z_)[:idx.size]
 
 
+def _z_in_box(x, lower, upper) -> np.ndarray:
+    """The solver coordinate of the values ``x`` in the box [lower, upper] (clipped into
+    it; a side held at one value has width 1), by NumPy: `ParameterSpace.u_from_free`'s
+    arithmetic and the sine map without a program."""
+    width = np.where(upper > lower, upper - lower, 1.0)
+    return z_from_u_host(np.clip((x - lower) / width, 0.0, 1.0))
+
+
 def _refit_solver(solver: str, rtol: float):
     """The re-fits' solver, its rtol a value of their program (one program whatever the
     rtol)."""
@@ -166,8 +174,7 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
     x_hat = np.asarray(free_values_of(space, params), dtype=float)
     lower, upper = np.asarray(space.lower, float), np.asarray(space.upper, float)
     scale = np.asarray(report.scale, float)
-    box = np.where(upper > lower, upper - lower, 1.0)
-    cost0 = float(cost_at(problem, z_from_u_host(np.clip((x_hat - lower) / box, 0.0, 1.0))))
+    cost0 = float(cost_at(problem, _z_in_box(x_hat, lower, upper)))
     sigma2 = _noise_variance(problem, cost0, inflation)
     held = [names.index(n) for n in (report.at_bound or {})]
     C = held_at_bounds(np.asarray(report.cov_log, float), held)
@@ -244,8 +251,7 @@ def refine_intervals(problem, params, report, *, inflation: float = 1.0,
             if np.all(np.isfinite(last_x[k])):
                 x0 = last_x[k] + x0 - on_path(i, logs, last_v[k])
             x0 = np.clip(x0, lowers[k], uppers[k])
-            width = np.where(uppers[k] > lowers[k], uppers[k] - lowers[k], 1.0)
-            z0s[k] = z_from_u_host(np.clip((x0 - lowers[k]) / width, 0.0, 1.0))
+            z0s[k] = _z_in_box(x0, lowers[k], uppers[k])
         # only the ends not yet found are re-fitted (a round that has one end left runs
         # one re-fit, not every end again), `_chunk()` at a time (the rest copies of the
         # first: one program whatever the number of ends), side by side on the CPU's
