@@ -202,18 +202,18 @@ class HybridGA(eqx.Module):
         return HybridGA(None, "inside", "GA", **{**self.settings(), "local_steps": 0})
 
     def _local_search(self, problem: AbstractProblem, state: GAState, costs) -> tuple:
-        """The ``inside`` placement's search from the generation's best individual
-        (``local_steps`` steps), skipped where the last search converged at that very
-        point: (ran, skipped, z, result, steps, cost, final step size) as host values
-        (NaN cost and step size where none ran)."""
+        """The ``inside`` search (``local_steps`` steps) from the generation's best, unless
+        the last one converged there (skipped: cost the best's): (ran, skipped, z, result,
+        steps, cost, final step size), host values (z 0, NaN where none ran)."""
         if self.local_solver is None or self.placement != "inside" or not self.local_steps:
             return _as_local(False, False, np.zeros(np.shape(state.U)[1]), RESULTS.successful,
                              0, np.nan, np.nan)
         costs, U = np.asarray(costs), np.asarray(state.U)
         best = int(np.argmin(costs))
-        z0 = np.asarray(_z_from_u(U[best]))
         if bool(state.has_last_local) and np.array_equal(U[best], np.asarray(state.last_local_u)):
-            return _as_local(False, True, z0, RESULTS.successful, 0, costs[best], np.nan)
+            return _as_local(False, True, np.zeros(U.shape[1]), RESULTS.successful, 0,
+                             costs[best], np.nan)
+        z0 = np.asarray(_z_from_u(U[best]))
         solver = with_initial_step_size(self.local_solver, state.step_size)
         run = SteppedSolve(problem, solver, z0[None], self.local_steps, with_cost=True)
         run.chunk = self.local_steps
