@@ -45,6 +45,36 @@ def _bounds():
                      jh.Parameters.from_array(np.maximum(lo, hi)))
 
 
+def test_a_law_the_conditions_cannot_determine_is_refused_in_one_line():
+    """A parameter's law has 1 + (its features × degree) coefficients and needs as many
+    distinct conditions, spread along each feature (records within 1 % are one
+    condition): otherwise the fit would return a slope the data do not fix."""
+    law = jh.ConditionModel({"k": "log_amplitude"})
+    assert law.undetermined(jh.Conditions(amplitude=[10.0, 20.0])) is None
+    why = law.undetermined(jh.Conditions(amplitude=[20.0, 20.1, 20.05]))
+    assert "2 coefficients, but the 3 records are at 1 condition" in why, why
+    assert "determines only 1" in why and why.count("\n") == 0
+    quadratic = jh.ConditionModel({"k": "log_amplitude"}, degree=2)
+    assert "3 coefficients" in quadratic.undetermined(jh.Conditions(amplitude=[10.0, 20.0]))
+    assert quadratic.undetermined(jh.Conditions(amplitude=[10.0, 20.0, 40.0])) is None
+    # two features that move together: three conditions, no third direction
+    f = np.array([100.0, 200.0, 400.0])
+    both = jh.ConditionModel({"c": ("log_f", "T")})
+    together = jh.Conditions(frequency=f, temperature=20.0 + 10.0 * np.log2(f / 100.0))
+    assert "3 records are at 3 conditions" in both.undetermined(together)
+    assert both.undetermined(jh.Conditions(frequency=f, temperature=[20.0, 40.0, 25.0])) \
+        is None
+    # the problem refuses it (the command line says it after "--vary: ")
+    H = 12e3 * np.cos(2 * np.pi * np.arange(101) / 100)
+    M = 5e5 * np.tanh((H + 2e3 * np.sign(np.gradient(-H))) / 4e3)
+    records = jh.JointProblem([M, M], [jh.drive_from_record(None, H)] * 2, NO_ACTUATOR,
+                              jh.per_record_space(_bounds(), 2), output="magnetization",
+                              variant=jh.ClassicJA())
+    with pytest.raises(ValueError, match="records are at 1 condition"):
+        jh.ConditionProblem(records, jh.Conditions(amplitude=[12e3, 12.05e3]), law,
+                            jh.condition_space(_bounds(), law))
+
+
 def test_condition_model_evaluates_power_laws_and_rejects_bad_input():
     m = jh.ConditionModel({"k": "log_f", "c": ("log_f", "T")}, degree=2)
     assert m.coefficient_names() == ["k:log_f", "k:log_f^2", "c:log_f", "c:log_f^2",

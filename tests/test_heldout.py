@@ -303,6 +303,9 @@ def test_loops_at_several_frequencies_get_rate_dependent_candidates_by_default()
     assert chosen([], peaks(15.0, 36.0, 107.0)) == (*CANDIDATES, AMPLITUDE_CANDIDATE)
     assert chosen([], peaks(15.0, 107.0)) == CANDIDATES  # (a fold's law needs two loops)
     assert chosen([], peaks(100.0, 102.0, 104.0)) == CANDIDATES  # (one amplitude)
+    # (without the 15 A/m loop a fold's two are at one amplitude: it fixes no slope)
+    assert chosen([], peaks(15.0, 100.0, 104.0)) == CANDIDATES
+    assert chosen([], peaks(15.0, 15.5, 100.0, 104.0)) == (*CANDIDATES, AMPLITUDE_CANDIDATE)
     assert chosen(["--vary", "k:log_amplitude"], peaks(15.0, 36.0, 107.0)) == CANDIDATES
     # a candidate's own law: one parameter, of its form, not also in --vary
     assert chosen(["--variant", "classic,play@spread:log_amplitude"], None) == \

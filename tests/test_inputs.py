@@ -29,6 +29,12 @@ def _files(d):
     ok.write_text("H [A/m],B [T]\n" + "".join(f"{h},{b}\n" for h, b in zip(H, B,
                                                                               strict=True)))
     files = {"ok": ok}
+    # loops of one material at three peak fields, and two of them within 0.2 %
+    rows = [f"{i},{s * h},{0.3 * np.tanh((s * h + 10 * np.sign(np.gradient(-H))[j]) / 30)}\n"
+            for i, s in enumerate((0.5, 1.0, 1.002)) for j, h in enumerate(H)]
+    for name, chosen in (("two_amplitudes", rows), ("two_loops", rows[:400])):
+        (d / name).write_text("loop,H [A/m],B [T]\n" + "".join(chosen))
+        files[name] = d / name
     for name, content in {
         "binary": b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xb6\xff",
         "empty": b"",
@@ -101,6 +107,13 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     (["identify", "{ok}", "--joint", "--vary", "spread:log_amplitude"], 2,
      "energy has no spread"),
     (["identify", "{ok}", "--joint", "--leave-one-out"], 2, "holds 1 loop"),
+    (["identify", "{two_loops}", "--joint", "--vary", "k:log_amplitude", "--vary-degree", "2"],
+     2, "3 coefficients, but the 2 records are at 2 conditions"),
+    (["identify", "{two_amplitudes}", "--joint", "--leave-one-out", "--vary",
+      "k:log_amplitude", "--variant", "classic"], 2,
+     "the fold without loop 0 cannot fit the law of classic"),
+    (["identify", "{two_amplitudes}", "--joint", "--leave-one-out", "--variant",
+      "play@spread:log_amplitude"], 2, "records are at 1 condition"),
     (["identify", "{ok}", "--bounds", "{bounds_spread}"], 2, "energy does not have"),
     (["simulate", "--seed", "3"], 2, "--seed goes with --noise"),
     (["simulate", "--temperature", "20"], 2, "--temperature goes with --model"),

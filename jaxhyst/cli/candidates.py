@@ -37,12 +37,47 @@ def split_candidate(candidate: str) -> tuple[str, list[str], str]:
 
 
 def _spans_amplitudes(loops, factor: float = 1.1) -> bool:
-    """Three loops or more whose peak drives (|H| or |I|) lie more than ``factor`` apart."""
+    """Three loops or more whose peak drives (|H| or |I|) lie more than ``factor`` apart
+    without any one of them: every fold's training loops span amplitudes (a law in the
+    amplitude needs two)."""
     import numpy as np
 
     peaks = [float(np.max(np.abs(lp.H if lp.H is not None else lp.I))) for lp in loops
              if lp.H is not None or lp.I is not None]
-    return len(loops) >= 3 and len(peaks) == len(loops) and max(peaks) > factor * min(peaks)
+    if len(loops) < 3 or len(peaks) != len(loops):
+        return False
+    folds = [peaks[:i] + peaks[i + 1:] for i in range(len(peaks))]
+    return all(max(p) > factor * min(p) for p in folds)
+
+
+def _check_fold_laws(spec, loops, forms) -> None:
+    """A one-line error where a fold's training loops cannot determine a compared
+    candidate's condition law (`jaxhyst.ConditionModel.undetermined`): loops at one
+    amplitude, say, fix no slope in it."""
+    import numpy as np
+
+    import jaxhyst as jh
+
+    from .problems import loop_conditions, parse_vary
+
+    laws = {f: {**parse_vary(spec.get("vary")), **parse_vary(split_candidate(f)[2])}
+            for f in forms}
+    laws = {f: law for f, law in laws.items() if law}
+    if not laws:
+        return
+    actuator = jh.Actuator(**spec["actuator"])
+    for i, held in enumerate(loops):
+        train = loops[:i] + loops[i + 1:]
+        c = loop_conditions(spec, train, actuator)
+        if spec.get("driven_by") == "B":  # (the B-driven laws: the loops' peak B)
+            c = jh.Conditions(frequency=c.frequency, temperature=c.temperature,
+                              amplitude=[float(np.max(np.abs(lp.signals["B"])))
+                                         for lp in train])
+        for form, law in laws.items():
+            why = jh.ConditionModel(law, int(spec.get("vary_degree", 1))).undetermined(c)
+            if why:
+                raise CLIError(f"--leave-one-out: the fold without loop {held.index} cannot "
+                               f"fit the law of {form}: {why}")
 
 
 def candidates(args, loops=None) -> list[str]:
@@ -167,3 +202,4 @@ def check_comparison(spec, loops, forms) -> None:
         raise CLIError(f"--vary {own[0]}: only the forms of pinning cells (play, preisach) "
                        f"have it, and the comparison includes {plain}; name the forms with "
                        "--variant play,preisach or vary another parameter.")
+    _check_fold_laws(spec, loops, forms)

@@ -109,6 +109,9 @@ class ConditionProblem(AbstractProblem):
         if L != n_records:
             raise ValueError(f"{L} conditions for {n_records} records: give one per record.")
         fitted = model.fitted_to(conditions)
+        undetermined = model.undetermined(conditions)
+        if undetermined:
+            raise ValueError(undetermined)
         self.form = ConditionModel(model.varies, model.degree)
         ref, rng = dict(fitted.reference), dict(fitted.fitted_range)
         self.reference = jnp.asarray([ref[f] for f in fitted.features], dtype=jnp.float64)

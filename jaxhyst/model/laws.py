@@ -98,6 +98,29 @@ class Conditions:
 
 
 _KEY = {"frequency": "log_f", "temperature": "T", "amplitude": "log_amplitude"}
+#: Records whose features all differ by less than this are at one condition (1 % in
+#: frequency or amplitude, 0.1 K in temperature).
+SAME_CONDITION = 0.01
+
+
+def _distinct_rows(x: np.ndarray) -> np.ndarray:
+    """One row of ``x`` (L, F) per condition: a row within `SAME_CONDITION` of an earlier
+    row in every column joins that row's condition."""
+    group = list(range(len(x)))
+    for i in range(len(x)):
+        for j in range(i):
+            if np.all(np.abs(x[i] - x[j]) < SAME_CONDITION):
+                group[i] = group[j]
+                break
+    return x[sorted(set(group))]
+
+
+def _described(conditions: Conditions, feature: str) -> str:
+    """The distinct values of a feature's condition, e.g. "amplitude 15.1, 35.7"."""
+    what = FEATURES[feature][0]
+    values = sorted({float(f"{v:.3g}") for v in conditions.raw(feature)})
+    shown = ", ".join(f"{v:g}" for v in values[:6]) + (" …" if len(values) > 6 else "")
+    return f"{what} {shown}"
 
 
 @dataclass(frozen=True)
@@ -155,6 +178,32 @@ class ConditionModel:
                 if self.degree == 2:
                     out.append(f"{name}:{f}^2")
         return out
+
+    def undetermined(self, conditions: Conditions) -> str | None:
+        """Why the records' ``conditions`` cannot determine this model's coefficients (one
+        line), or None. A parameter's law has 1 + (its features × degree) coefficients
+        and needs as many distinct conditions, spread along each of its features
+        (records whose features all differ by less than `SAME_CONDITION` are one
+        condition: loops measured at the same amplitude determine no slope in it)."""
+        X = self.fitted_to(conditions).feature_values(conditions)
+        for name, feats in self.varying:
+            x = X[:, [self.features.index(f) for f in feats]]
+            distinct = _distinct_rows(x)
+            design = np.concatenate([np.ones((len(distinct), 1)), distinct] +
+                                    ([distinct ** 2] if self.degree == 2 else []), axis=1)
+            needed, rank = design.shape[1], int(np.linalg.matrix_rank(design))
+            if rank < needed:
+                seen = "; ".join(_described(conditions, f) for f in feats)
+                if len(distinct) < len(x):
+                    seen += ": values within 1 % (0.1 K) are one condition"
+                law = "+".join(feats) + (" (degree 2)" if self.degree == 2 else "")
+                n = len(distinct)
+                return (f"{name} varies with {law}: {needed} coefficients, but the "
+                        f"{len(x)} records are at {n} condition{'s' if n > 1 else ''} "
+                        f"({seen}), which determine{'s' if n == 1 else ''} only {rank}; "
+                        "give records at more different conditions"
+                        + (", or use degree 1" if self.degree == 2 else "") + ".")
+        return None
 
     def fitted_to(self, conditions: Conditions) -> ConditionModel:
         """This model with its references (and the fitted range, for warnings) from the
