@@ -54,11 +54,9 @@ def _check_fold_laws(spec, loops, forms) -> None:
     """A one-line error where a fold's training loops cannot determine a compared
     candidate's condition law (`jaxhyst.ConditionModel.undetermined`): loops at one
     amplitude, say, fix no slope in it."""
-    import numpy as np
-
     import jaxhyst as jh
 
-    from .problems import loop_conditions, parse_vary
+    from .problems import law_conditions, parse_vary
 
     laws = {f: {**parse_vary(spec.get("vary")), **parse_vary(split_candidate(f)[2])}
             for f in forms}
@@ -68,11 +66,7 @@ def _check_fold_laws(spec, loops, forms) -> None:
     actuator = jh.Actuator(**spec["actuator"])
     for i, held in enumerate(loops):
         train = loops[:i] + loops[i + 1:]
-        c = loop_conditions(spec, train, actuator)
-        if spec.get("driven_by") == "B":  # (the B-driven laws: the loops' peak B)
-            c = jh.Conditions(frequency=c.frequency, temperature=c.temperature,
-                              amplitude=[float(np.max(np.abs(lp.signals["B"])))
-                                         for lp in train])
+        c = law_conditions(spec, train, actuator)
         for form, law in laws.items():
             why = jh.ConditionModel(law, int(spec.get("vary_degree", 1))).undetermined(c)
             if why:

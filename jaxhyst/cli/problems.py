@@ -211,6 +211,20 @@ def loop_conditions(spec, loops, actuator, overrides=None):
                          amplitude=amplitude)
 
 
+def law_conditions(spec, loops, actuator):
+    """The `Conditions` a fit's condition law sees: `loop_conditions`, with each loop's
+    peak flux density (T) as its amplitude where the fit is driven by B."""
+    import numpy as np
+
+    import jaxhyst as jh
+
+    c = loop_conditions(spec, loops, actuator)
+    if spec.get("driven_by") != "B":
+        return c
+    return jh.Conditions(frequency=c.frequency, temperature=c.temperature,
+                         amplitude=[float(np.max(np.abs(lp.signals["B"]))) for lp in loops])
+
+
 def model_parameters_from_json(obj: dict, form, what: str):
     """A model's parameters from ``{name: value}`` or a result's ``{"params": {name:
     {"value": v}}}``: `Parameters`, with `Losses` where the loss coefficients are given
@@ -392,11 +406,7 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
     records = jh.FluxProblem(H, drives, jh.per_record_space(bounds, len(loops), losses_box,
                                                             own_form),
                              output="field", variant=form, substeps=substeps)
-    actuator = jh.Actuator(**spec["actuator"])
-    c = loop_conditions(spec, loops, actuator)
-    peak_B = [float(np.max(np.abs(lp.signals["B"]))) for lp in loops]
-    conditions = jh.Conditions(frequency=c.frequency, temperature=c.temperature,
-                               amplitude=peak_B)
+    conditions = law_conditions(spec, loops, jh.Actuator(**spec["actuator"]))
     law = jh.ConditionModel(vary, int(spec.get("vary_degree", 1)))
     try:
         space = jh.condition_space(bounds, law, fixed=fixed, losses=losses_box,
