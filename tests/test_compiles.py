@@ -308,3 +308,21 @@ def test_the_profile_checks_refits_take_their_tolerance_as_a_value(monkeypatch):
     assert first.interval_methods == second.interval_methods
     for name, (lo, hi) in first.intervals.items():
         assert second.intervals[name] == pytest.approx((lo, hi), rel=1e-6), name
+
+
+def test_replicate_fits_and_profiles_take_their_step_limit_as_a_value():
+    """`fit_replicates` and `profile_likelihood` pass ``max_steps`` to their program as a
+    value: a new step limit compiles no fit program, and the limit still binds."""
+    from jaxhyst.analysis import fit_replicates, profile_likelihood
+
+    problem, y = exponential_problem(0.5)
+    fit = jh.solve(problem, {"b": 0.4, "m": 0.1}, solver="lm", report=False)
+    data = {"y": y + 0.5 * np.random.default_rng(2).standard_normal((3, y.size))}
+    first = fit_replicates(problem, data, fit.params, max_steps=20, batch_size=3)
+    with counting() as compiled:
+        one = fit_replicates(problem, data, fit.params, max_steps=1, batch_size=3)
+        prof = profile_likelihood(problem, fit.params, "b", n=3, max_steps=40, batch_size=3)
+    assert not [n for n in compiled.names if "_fit_batch" in n], compiled.names
+    assert np.all(one["steps"] <= 1) and np.all(first["steps"] > 1), (one["steps"],
+                                                                     first["steps"])
+    assert np.all(np.isfinite(prof.cost)) and prof.delta_chi2.min() < 1e-6

@@ -109,7 +109,7 @@ def _refit(problem, solver, lowers, uppers, z0s, max_steps, size, idx):
     batch of ``size``: (idx, their costs, their solver coordinates)."""
     fill = np.concatenate([idx, np.full(size - idx.size, idx[0])])
     c_, z_ = _held_costs(problem, solver, jnp.asarray(lowers[fill]), jnp.asarray(uppers[fill]),
-                         jnp.asarray(z0s[fill]), max_steps)
+                         jnp.asarray(z0s[fill]), np.int64(max_steps))
     return idx, np.asarray(c_)[:idx.size], np.asarray(z_)[:idx.size]
 
 
@@ -136,7 +136,7 @@ def compile_refits(problem, solver: str = "lm", max_steps: int = STEPS) -> None:
     lower, upper = (jnp.asarray(np.tile(np.asarray(b, float), (size, 1)))
                     for b in (problem.space.lower, problem.space.upper))
     _held_costs.lower(problem, _refit_solver(solver, RE_FIT_TOLERANCES[0]), lower, upper,
-                      jnp.zeros_like(lower), max_steps).compile()
+                      jnp.zeros_like(lower), np.int64(max_steps)).compile()
 
 
 @eqx.filter_jit

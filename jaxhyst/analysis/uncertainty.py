@@ -137,8 +137,9 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
       parameter is not identifiable by the linear analysis.
     - ``solver``/``max_steps``: the local solver of the constrained re-fits, all started
       from ``params`` and run as one vmapped batch (or batches of ``batch_size``; the
-      same batch size, solver and ``max_steps`` as an earlier profile or `fit_replicates`
-      of the same problem reuse its compiled program, whichever parameter is profiled).
+      same batch size and solver as an earlier profile or `fit_replicates` of the same
+      problem reuse its compiled program, whichever parameter is profiled and whatever
+      its ``max_steps``).
     - ``progress``: a progress meter (`jaxhyst.progress`) or True; silent by default.
     """
     space = problem.space
@@ -211,7 +212,8 @@ def _gn_std_errors(problem, x):
 def _fit_batch(problem, solver, datas, lowers, uppers, z0, max_steps):
     """One vmapped batch of local fits of ``problem`` with per-member data and box
     (a profile holds a parameter by lower = upper = v, which keeps the free set — and so
-    the compiled program — the same for every profiled parameter and for replicates)."""
+    the compiled program — the same for every profiled parameter and for replicates);
+    ``max_steps`` is a value of the program (an int64 array), not part of it."""
 
     def one(d, lo, hi):
         p = eqx.tree_at(lambda q: q.space, problem.with_data(d),
@@ -248,7 +250,7 @@ def _fit_many(problem, datas, lowers, uppers, start, solver, max_steps, batch_si
             chunk = [jax.tree.map(lambda a: np.concatenate(
                 [a, np.repeat(a[-1:], pad, axis=0)]), x) for x in chunk]
         args = [jax.tree.map(lambda a: place(jnp.asarray(a), sharding), x) for x in chunk]
-        res = jax.device_get(_fit_batch(problem, solver_, *args, z0, max_steps))
+        res = jax.device_get(_fit_batch(problem, solver_, *args, z0, np.int64(max_steps)))
         res = jax.tree.map(lambda r: np.asarray(r)[: batch_size - pad], res)
         return b + batch_size, [*out, res]
 
