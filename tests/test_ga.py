@@ -72,11 +72,12 @@ def test_non_uniform_mutation_stays_in_bounds_and_shrinks():
 def test_elites_survive_unchanged():
     U = jax.random.uniform(KEY, (30, 10))
     fitness = jnp.arange(30.0)
-    children = ga.fcga_offspring(KEY, U, fitness, 10, 300, 1.0, 1.0)
+    # (jitted, as in the generations: op by op each operation compiles on its own)
+    children = jax.jit(ga.fcga_offspring)(KEY, U, fitness, 10, 300, 1.0, 1.0)
     np.testing.assert_array_equal(children[0], U[29])
     np.testing.assert_array_equal(children[1], U[28])
-    genes = ga.encode(U, 16)
-    kids = ga.bcga_offspring(KEY, genes, fitness, 1.0, 1.0)
+    genes = jax.jit(ga.encode, static_argnums=1)(U, 16)
+    kids = jax.jit(ga.bcga_offspring)(KEY, genes, fitness, 1.0, 1.0)
     np.testing.assert_array_equal(kids[0], genes[29])
     np.testing.assert_array_equal(kids[1], genes[28])
 
