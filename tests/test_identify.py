@@ -131,6 +131,21 @@ def test_single_solve_result_object_report_and_immutability(problem):
     assert bare.report is None and bare.cost == res.cost
 
 
+def test_the_fitted_output_is_read_from_the_fits_own_residuals(problem):
+    """`fitted_output` (the command line's figure) takes a Gauss–Newton fit's output from
+    its last linearization — the same values as a simulation, no program compiled —
+    and simulates where that linearization is not of this problem."""
+    from jaxhyst.identify.summary import fitted_output
+
+    res = jh.solve(problem, _start(problem), solver="lm", max_steps=5, report=False)
+    assert res.linearization is not None
+    direct = np.asarray(problem.predict(res.params))
+    tol = 1e-12 * np.max(np.abs(direct))
+    np.testing.assert_allclose(fitted_output(res, problem), direct, rtol=0, atol=tol)
+    other = eqx.tree_at(lambda q: q.data, problem, 1.01 * problem.data)  # (other data)
+    np.testing.assert_allclose(fitted_output(res, other), direct, rtol=0, atol=tol)
+
+
 def test_multistart_table_and_best(problem):
     starts = np.stack([_start(problem), np.random.default_rng(0).uniform(0.05, 0.95, 10)])
     res = jh.multistart(problem, starts, solver="lm", max_steps=200, report=False)

@@ -370,6 +370,7 @@ def _identify_figure(args, problem, result, has_t: bool) -> list[str]:
     import numpy as np
 
     import jaxhyst as jh
+    from jaxhyst.identify.summary import fitted_output
     from jaxhyst.plots import plot_fit, plot_history
 
     flags = (" — at bound: " + ", ".join(result.at_bound)) if result.at_bound else ""
@@ -387,7 +388,7 @@ def _identify_figure(args, problem, result, has_t: bool) -> list[str]:
                  [pred[i][mask[i]] for i in range(problem.n_loops)], problem.output, args.png,
                  title=f"{result.solver}: {problem.n_loops} loops fitted jointly{flags}")
         return [args.png]
-    pred = np.asarray(problem.predict(result.params))
+    pred = fitted_output(result, problem)  # (from the fit's residuals: no compile)
     plot_fit(problem.drive.observed(problem.drive.H), problem.data, pred, problem.output,
              args.png, t=problem.drive.observed(problem.drive.t) if has_t else None,
              title=f"{result.solver}: measured and fitted ({os.path.basename(args.data)})"

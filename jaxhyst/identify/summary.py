@@ -105,3 +105,16 @@ def with_linearization(result: IdentificationResult, problem: AbstractProblem, z
     return dataclasses.replace(result, linearization=(
         np.asarray(result.values, float), J[:N] * per_row[:, None] / dxdz, r[:N] * per_row,
         content_digest(problem)))
+
+
+def fitted_output(result: IdentificationResult, problem: AbstractProblem) -> np.ndarray:
+    """The observed output of a single-signal ``problem`` (its unit, shape of its data) at
+    ``result``'s values: data + residuals from the solver's last linearization where it
+    was made of this problem at those values (nothing simulated, nothing compiled), else
+    ``problem.predict``."""
+    lin, data = result.linearization, np.asarray(problem.data, dtype=float)
+    if lin is not None and len(problem.groups) == 1 and lin[2].shape == data.shape \
+            and np.array_equal(lin[0], np.asarray(result.values, float)) \
+            and lin[3] == content_digest(problem):
+        return data + lin[2]
+    return np.asarray(problem.predict(result.params))
