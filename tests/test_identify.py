@@ -303,7 +303,9 @@ def test_box_termination_stops_a_bound_optimum_sooner_at_the_requested_tolerance
 
     (z_plain, n_plain, ok_plain, no_step, _, _), (z_box, n_box, ok_box, _, r, accepted) = (
         eqx.filter_jit(run)(s) for s in (make_solver("lm"), BoxTermination(make_solver("lm"))))
-    assert bool(ok_plain) and bool(ok_box)
+    # (the plain solve converges after ~70 steps, or creeps to its step limit with the
+    # oldest Optimistix allowed)
+    assert bool(ok_box) and (bool(ok_plain) or int(n_plain) == 300)
     assert int(n_box) < int(n_plain), (int(n_box), int(n_plain))
     # the state read: the residuals at the accepted point, and (LMA/TRA only) the
     # damping or radius a hybrid carries over
