@@ -198,7 +198,7 @@ def test_transformations_called_without_jit_run_the_compiled_simulation(caplog):
     np.testing.assert_allclose(jac, jax.jit(jax.jacfwd(y))(x), rtol=1e-12, atol=0)
     plain = [y(v) for v in batch]
     np.testing.assert_allclose(batched, jnp.stack(plain), rtol=1e-12, atol=0)
-    np.testing.assert_allclose(grad, 2e12 * jac.T @ plain[0], rtol=1e-9,
+    np.testing.assert_allclose(grad, 2e12 * jac.T @ plain[0], rtol=1e-12,
                                atol=1e-12 * float(jnp.max(jnp.abs(grad))))
 
 
