@@ -95,6 +95,32 @@ def test_simulate_and_simulate_flux_compile_nothing_for_a_new_frequency_or_loss_
     assert compiled.names == []
 
 
+def test_a_simulations_accuracy_check_compiles_beside_it():
+    """`simulate` and `simulate_flux` decide their accuracy check's simulations from the
+    drive alone, so the first (twice the substeps) compiles in a background thread while
+    the simulation's own program compiles, the second (with losses: the drive at half
+    the sample step) in the caller's thread after it — each program once, no thread left
+    behind, the same signals and the same warning as the check gives."""
+    from jaxhyst.model.accuracy import SamplingWarning
+
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=27)
+    with counting() as compiled, pytest.warns(SamplingWarning, match="2 RK4 substeps"):
+        sim = jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive)  # (shapes of their own)
+    assert sum(n.startswith("Compiling jit(_simulate) ") for n in compiled.names) == 2
+    assert compiled.threads["jit(_simulate)"] == {"MainThread", "jaxhyst-compile-meanwhile"}
+    np.testing.assert_array_equal(
+        sim.y, jh.simulate_unchecked(jh.TABLE1_TRUE, jh.ACTUATOR1, drive).y)
+    flux = jh.sinusoidal_flux(400.0, 0.3, samples_per_period=23)
+    losses = jh.Losses(eddy=0.05, excess=0.5)
+    with counting() as compiled, pytest.warns(SamplingWarning, match="B-driven"):
+        jh.simulate_flux(SOFT, flux, losses=losses)
+    names = [n for n in compiled.names if n.startswith("Compiling jit(simulate_flux_unch")]
+    assert len(names) == 3, compiled.names
+    assert compiled.threads["jit(simulate_flux_unchecked)"] == {
+        "MainThread", "jaxhyst-compile-meanwhile"}
+    assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-meanwhile"]
+
+
 SOFT = jh.Parameters(Ms=3.5e5, lambda_s=0.0, a=30.0, k=20.0, alpha=1e-5, c=0.3, E=1.0,
                      Kz=1.0, Mz=1.0, Cz=0.0)
 FIXED = {"Ms": 3.5e5, "alpha": 1e-5, "lambda_s": 0.0, "E": 1.0, "Kz": 1.0, "Mz": 1.0,
@@ -104,13 +130,15 @@ FIXED = {"Ms": 3.5e5, "alpha": 1e-5, "lambda_s": 0.0, "E": 1.0, "Kz": 1.0, "Mz":
 def _fit(frequency, amplitude, box, loss_box, sigma=None):
     """A joint fit of three B(H) loops of the rate-dependent classic form at
     ``frequency`` (Hz) and three amplitudes around ``amplitude`` (A/m), the loops' noise
-    level ``sigma`` (T) declared or (None) estimated."""
+    level ``sigma`` (T) declared or (None) estimated. (The loops are made without
+    `simulate`'s accuracy check: it would compile two more programs.)"""
     from jaxhyst.identify.joint import NO_ACTUATOR
 
     drives, data = [], []
     for scale in (0.6, 1.0, 1.6):
         d = jh.sinusoidal_field(frequency, scale * amplitude, 0.0, samples_per_period=48)
-        sim = jh.simulate(SOFT, NO_ACTUATOR, d, jh.ClassicJA(), losses=jh.Losses(0.05, 0.5))
+        sim = jh.simulate_unchecked(SOFT, NO_ACTUATOR, d, jh.ClassicJA(),
+                                    losses=jh.Losses(0.05, 0.5))
         drives.append(d)
         data.append(np.asarray(d.observed(MU0 * (sim.H + sim.M))))
     space = jh.ParameterSpace.for_model(box, fixed=FIXED, losses=loss_box, n_loops=3)
@@ -149,7 +177,7 @@ def test_loops_of_other_lengths_padded_alike_share_a_program_and_cost_what_they_
         out = []
         for n, amplitude in zip(samples, (60.0, 150.0), strict=True):
             d = jh.sinusoidal_field(1.0, amplitude, 0.0, samples_per_period=n)
-            sim = jh.simulate(SOFT, NO_ACTUATOR, d, jh.ClassicJA(), substeps=2)
+            sim = jh.simulate_unchecked(SOFT, NO_ACTUATOR, d, jh.ClassicJA(), substeps=2)
             out.append((d, np.asarray(d.observed(MU0 * (sim.H + sim.M)))))
         return out
 
@@ -192,7 +220,7 @@ def test_a_fits_report_compiles_in_a_thread_of_its_own_while_the_fit_runs():
     from jaxhyst.identify.joint import NO_ACTUATOR
 
     d = jh.sinusoidal_field(1.0, 90.0, 0.0, samples_per_period=38)  # (a shape of its own)
-    sim = jh.simulate(SOFT, NO_ACTUATOR, d, jh.ClassicJA(), substeps=2)
+    sim = jh.simulate_unchecked(SOFT, NO_ACTUATOR, d, jh.ClassicJA(), substeps=2)
     box = jh.Bounds(SOFT.replace(a=10.0, k=5.0, c=0.05), SOFT.replace(a=100.0, k=60.0, c=0.9))
     problem = jh.Problem(np.asarray(d.observed(MU0 * (sim.H + sim.M))), d, NO_ACTUATOR,
                          jh.ParameterSpace(box, FIXED), output="flux_density",
@@ -223,7 +251,7 @@ def _loop_problem(samples_per_period, noise):
     from jaxhyst.identify.joint import NO_ACTUATOR
 
     d = jh.sinusoidal_field(1.0, 90.0, 0.0, samples_per_period=samples_per_period)
-    sim = jh.simulate(SOFT, NO_ACTUATOR, d, jh.ClassicJA(), substeps=2)
+    sim = jh.simulate_unchecked(SOFT, NO_ACTUATOR, d, jh.ClassicJA(), substeps=2)
     B = np.asarray(d.observed(MU0 * (sim.H + sim.M)))
     B = B + noise * np.max(np.abs(B)) * np.random.default_rng(3).standard_normal(B.shape)
     box = jh.Bounds(SOFT.replace(a=10.0, k=5.0, c=0.05), SOFT.replace(a=100.0, k=60.0, c=0.9))

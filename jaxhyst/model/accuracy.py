@@ -8,7 +8,10 @@ the field moves far per substep (more than `SCREEN_STEP` of its range, where the
 *can* exceed the documented accuracy); finer drives are accurate whatever the material.
 
 `SamplingWarning` is raised where the estimate exceeds `ACCURACY` (the documented
-1e-5 of the signal's size), with the substeps that bring it below.
+1e-5 of the signal's size), with the substeps that bring it below. The check's
+simulations are decided from the drive alone, so their programs compile in a background
+thread while the caller's own compiles (`checked_meanwhile`): on two cores a first call
+that is checked waits for the longest of them, not for their sum.
 """
 
 from __future__ import annotations
@@ -77,6 +80,28 @@ def refined(drive):
     t2[::2], x2[::2] = t, x
     t2[1::2], x2[1::2] = 0.5 * (t[1:] + t[:-1]), 0.5 * (x[1:] + x[:-1])
     return t2, x2, 2 * drive.run_in
+
+
+def checked_meanwhile(run, cases, simulation, usable) -> list:
+    """``[simulation(), run(*case) for each of cases]``: a simulation and its accuracy
+    check's (``cases`` decided from the drive alone, before it runs), the check's programs
+    compiled beside the simulation's own — the first case's in a background thread
+    (`jaxhyst._background.meanwhile`, from the caller's first large lowering on), the
+    rest in the caller's thread after the simulation. ``usable(sim)``: whether the
+    simulation can be checked (finite); if not, ``[sim]`` alone. The thread is joined on
+    every way out."""
+    from .._background import meanwhile
+
+    background = meanwhile(lambda: run(*cases[0])) if cases else None
+    try:
+        sim = simulation()
+        if not usable(sim):
+            return [sim]
+        later = [run(*case) for case in cases[1:]]
+    finally:
+        if background is not None:
+            background.join()
+    return [sim, *([run(*cases[0])] if cases else []), *later]
 
 
 def substeps_for(error: float, substeps: int) -> int:

@@ -49,6 +49,7 @@ from ..params import MU0, Parameters, check_parameters, is_concrete, physically_
 from .accuracy import (
     FLUX_ACCURACY,
     SamplingWarning,
+    checked_meanwhile,
     may_be_coarse,
     refined,
     richardson_error,
@@ -275,12 +276,26 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
     check_parameters(params)
     if after_effect is None:  # (decided here, where relax is a value: under jit it is not)
         after_effect = _relaxes(losses)
-    sim = _simulate_flux_jit(params, drive, variant, substeps, losses, bool(after_effect))
-    if not is_concrete(sim.H):  # (traced: nothing to read, nothing to check)
-        return sim
+    after_effect = bool(after_effect)
+    if not is_concrete((params, drive, variant, losses)):  # (traced: nothing to check)
+        return _simulate_flux_jit(params, drive, variant, substeps, losses, after_effect)
+    # the accuracy check's simulations (decided from the drive alone; compiled beside
+    # this one's): more substeps where B moves far per substep, with losses the drive at
+    # half the sample step
+    coarse = may_be_coarse(np.asarray(drive.observed(drive.B)), substeps)
+    cases = [(drive, 2 * substeps)] if coarse else []
+    if losses is not None:
+        t2, B2, run_in2 = refined(drive)
+        cases.append((FluxDrive(t2, B2, run_in2, drive.uniform), substeps))
+    sims = checked_meanwhile(
+        lambda d, s: _simulate_flux_jit(params, d, variant, s, losses, after_effect), cases,
+        lambda: _simulate_flux_jit(params, drive, variant, substeps, losses, after_effect),
+        lambda sim: bool(np.all(np.isfinite(np.asarray(sim.H)))))
+    sim = sims[0]
     finite = np.isfinite(np.asarray(sim.H))
     if finite.all():
-        _check_accuracy(params, drive, variant, substeps, losses, sim, bool(after_effect))
+        _check_accuracy(substeps, sim, sims[1] if coarse else None,
+                        sims[-1] if losses is not None else None)
     if not finite.all():
         i = int(np.flatnonzero(~finite)[0])
         raise FloatingPointError(
@@ -290,23 +305,19 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
     return sim
 
 
-def _check_accuracy(params, drive, variant, substeps, losses, sim, after_effect) -> None:
-    """A `SamplingWarning` where the error of H at this sampling — estimated from the same
-    drive at twice the substeps (RK4 in B) and, with losses, at half the sample step —
-    exceeds `FLUX_ACCURACY` of H's range (only for drives whose B moves more than 1 % of
-    its range per substep, or with losses)."""
+def _check_accuracy(substeps, sim, more_substeps, finer) -> None:
+    """A `SamplingWarning` where the error of H in ``sim`` — estimated from the same
+    drive at twice the substeps (RK4 in B: ``more_substeps``) and, with losses, at half
+    the sample step (``finer``), each None where not simulated — exceeds
+    `FLUX_ACCURACY` of H's range (simulated only for drives whose B moves more than 1 %
+    of its range per substep, or with losses)."""
     H = np.asarray(sim.observed("H"))
     size = float(np.ptp(H)) or 1.0
     in_substeps = in_samples = 0.0
-    if may_be_coarse(np.asarray(drive.observed(drive.B)), substeps):
-        fine = _simulate_flux_jit(params, drive, variant, 2 * substeps, losses,
-                                  after_effect)
-        in_substeps = richardson_error(H, fine.observed("H"), size)
-    if losses is not None:
-        t2, B2, run_in2 = refined(drive)
-        fine = _simulate_flux_jit(params, FluxDrive(t2, B2, run_in2, drive.uniform), variant,
-                                  substeps, losses, after_effect)
-        in_samples = step_error(H, np.asarray(fine.observed("H"))[::2], size)
+    if more_substeps is not None:
+        in_substeps = richardson_error(H, more_substeps.observed("H"), size)
+    if finer is not None:
+        in_samples = step_error(H, np.asarray(finer.observed("H"))[::2], size)
     error = max(in_substeps, in_samples)
     if error > FLUX_ACCURACY:
         # (the loss fields' error is the sample step's: more substeps do not reduce it;

@@ -37,6 +37,7 @@ from ._batching import blocked_under_vmap
 from .accuracy import (
     RATE_ACCURACY,
     SamplingWarning,
+    checked_meanwhile,
     may_be_coarse,
     refined,
     richardson_error,
@@ -273,7 +274,9 @@ def simulate(
     Warns (`jaxhyst.model.accuracy.SamplingWarning`) where the error at this sampling,
     estimated from the same simulation at twice the substeps, exceeds the documented
     1e-5 of max|y| (or of max|M|): only drives whose field moves more than 1 % of its
-    range per substep are checked (one more simulation).
+    range per substep are checked (one more simulation; with ``losses`` another at half
+    the sample step). Those simulations compile in a background thread while this one's
+    program compiles (`jaxhyst.model.accuracy.checked_meanwhile`).
 
     **Returns:** a `Simulation` with every signal, shape (T,); raises
     ``FloatingPointError`` (naming the first bad sample) if the simulation diverged
@@ -283,9 +286,23 @@ def simulate(
     """
     _check_inputs(params, actuator, drive, variant, substeps, losses)
     _check_single(params, drive)
-    sim = _simulate_jit(params, actuator, drive, variant, substeps, losses)
-    if isinstance(sim.M, jax.core.Tracer):
-        return sim
+    if not is_concrete((params, actuator, drive, variant, losses)):  # (traced: no check)
+        return _simulate_jit(params, actuator, drive, variant, substeps, losses)
+    # the check's simulations (from the drive alone): more substeps where the field moves
+    # far per substep, with losses the drive at half the sample step
+    coarse = may_be_coarse(np.asarray(drive.observed(drive.H)), substeps)
+    finer = None
+    if losses is not None:
+        t2, H2, run_in2 = refined(drive)
+        finer = Drive(t2, H2, run_in2, drive.uniform, drive.periodic)
+    cases = ([(drive, 2 * substeps)] if coarse else []) + \
+        ([(finer, substeps)] if finer is not None else [])
+    fines = checked_meanwhile(
+        lambda d, s: _simulate_jit(params, actuator, d, variant, s, losses), cases,
+        lambda: _simulate_jit(params, actuator, drive, variant, substeps, losses),
+        lambda sim: bool(np.all(np.isfinite(np.asarray(sim.M)))
+                         & np.all(np.isfinite(np.asarray(sim.y)))))
+    sim = fines.pop(0)
     finite = np.isfinite(np.asarray(sim.M)) & np.isfinite(np.asarray(sim.y))  # (no compile)
     if not finite.all():
         bad = np.flatnonzero(~finite)
@@ -295,17 +312,15 @@ def simulate(
             f"{float(drive.t[i]):g} s, H = {float(drive.H[i]):g} A/m) on; the parameters or "
             "the drive lie outside the model's range. (simulate_unchecked returns the NaN "
             "instead of raising.)")
-    if may_be_coarse(np.asarray(drive.observed(drive.H)), substeps):
-        fine = _simulate_jit(params, actuator, drive, variant, 2 * substeps, losses)
+    if coarse:
+        fine = fines.pop(0)
         error = max(richardson_error(sim.observed(name), fine.observed(name))
                     for name in ("M", "y"))
         message = sampling_message(error, substeps, "the simulation (M, y)")
         if message is not None:
             warnings.warn(message, SamplingWarning, stacklevel=2)
-    if losses is not None:  # the field balance: second order in the sample step
-        t2, H2, run_in2 = refined(drive)
-        finer = Drive(t2, H2, run_in2, drive.uniform, drive.periodic)
-        fine = _simulate_jit(params, actuator, finer, variant, substeps, losses)
+    if finer is not None:  # the field balance: second order in the sample step
+        fine = fines.pop(0)
         error = max(step_error(sim.observed(name), fine.observed(name)[..., ::2])
                     for name in ("M", "y"))
         if error > RATE_ACCURACY:
