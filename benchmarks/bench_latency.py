@@ -111,6 +111,23 @@ def _child(what):
     import jaxhyst as jh
     from jaxhyst.identify.joint import NO_ACTUATOR
 
+    if what.startswith("simulate:"):  # a first call whose accuracy is checked
+        import warnings
+
+        warnings.simplefilter("ignore")
+        t0 = time.perf_counter()
+        if what == "simulate:rate":
+            d = jh.sinusoidal_field(300.0, 200.0, 0.0, samples_per_period=48)
+            sim = jh.simulate(jh.Parameters(Ms=3.5e5, lambda_s=0.0, a=30.0, k=20.0,
+                                            alpha=1e-5, c=0.3, E=1.0, Kz=1.0, Mz=1.0,
+                                            Cz=0.0),
+                              NO_ACTUATOR, d, jh.ClassicJA(), losses=jh.Losses(0.05, 0.5))
+        else:
+            d = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=60)
+            sim = jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, d)
+        np.asarray(sim.M)
+        print(json.dumps({"ready_s": time.perf_counter() - t0}))
+        return
     form = {"classic": jh.ClassicJA(), "play": jh.PlayJA(1.0)}[what.split(":")[1]]
     p = jh.Parameters(Ms=3.5e5, lambda_s=0.0, a=30.0, k=20.0, alpha=1e-5, c=0.3, E=1.0,
                       Kz=1.0, Mz=1.0, Cz=0.0)
@@ -145,6 +162,16 @@ def python_first_calls() -> list[tuple[str, str]]:
         s = json.loads(r.stdout.strip().splitlines()[-1])["first_call_s"]
         rows.append((name, f"{s:.1f} s"))
         print(name, rows[-1][1], flush=True)
+    for what, name in (("simulate:coarse", "first simulate, checked (Table 1, 60 samples "
+                                           "a period: two programs)"),
+                       ("simulate:rate", "first simulate, checked (rate dependent, 48 "
+                                         "samples a period: three programs)")):
+        r = subprocess.run([sys.executable, __file__, "--child", what], env=env,
+                           capture_output=True, text=True)
+        if r.returncode:
+            raise RuntimeError(r.stderr[-2000:])
+        rows.append((name, f"{json.loads(r.stdout.strip().splitlines()[-1])['ready_s']:.1f} s"))
+        print(rows[-1], flush=True)
     for form in ("classic", "play"):
         r = subprocess.run([sys.executable, __file__, "--child", f"multistart:{form}"],
                            env=env, capture_output=True, text=True)
