@@ -60,6 +60,7 @@ from .drivers import FluxDriven
 from .jiles_atherton import PAPER_VARIANT, AbstractJAVariant, anhysteretic
 from .losses import Losses, dynamic_energy, dynamic_field
 from .paths import FORM_TYPES, hysteresis_path
+from .simulate import _outside_jit
 
 __all__ = ["FluxDrive", "FluxDriven", "FluxSimulation", "flux_from_period",
            "flux_from_record", "simulate_flux", "simulate_flux_unchecked", "sinusoidal_flux"]
@@ -173,11 +174,22 @@ def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
     """`simulate_flux` without input checks: the pure function for jit/vmap/grad (the
     arguments in the order of `jaxhyst.simulate_unchecked`). ``after_effect`` (static):
     True for the path with the magnetization's relaxation (module docstring), False for
-    the path without it; None: with it where ``losses.relax`` is a concrete value > 0."""
+    the path without it; None: with it where ``losses.relax`` is a concrete value > 0.
+
+    Outside ``jax.jit`` (concrete values, or ``jax.grad``, ``jacfwd``, ``vmap``… called
+    directly) it runs as one compiled program, like `simulate_flux`; inside a jit trace it
+    is traced into your program (as `jaxhyst.simulate_unchecked` does)."""
     substeps, losses = _arguments(substeps, losses, "simulate_flux_unchecked")
-    S = int(substeps)
     if after_effect is None:
         after_effect = _relaxes(losses)
+    if _outside_jit((params, drive, losses)):
+        return _simulate_flux_jit(params, drive, variant, substeps, losses, bool(after_effect))
+    return _simulate_flux(params, drive, variant, substeps, losses, after_effect)
+
+
+def _simulate_flux(params, drive, variant, substeps, losses, after_effect) -> FluxSimulation:
+    """The B-driven simulation itself (`simulate_flux_unchecked`)."""
+    S = int(substeps)
     losses = Losses() if losses is None else losses
     B, t = drive.B, drive.t
     if after_effect:
@@ -239,7 +251,7 @@ def _simulation(params, drive, H, H_hyst, M, per_interval, bad) -> FluxSimulatio
                           cycle_energy=energy, run_in=drive.run_in)
 
 
-_simulate_flux_jit = eqx.filter_jit(simulate_flux_unchecked)
+_simulate_flux_jit = eqx.filter_jit(_simulate_flux)
 
 
 def simulate_flux(params: Parameters, drive: FluxDrive,
