@@ -30,10 +30,10 @@ def _B(sim):
 
 def test_simulate_flux_unchecked_called_directly_runs_compiled(caplog):
     """Outside any jit trace `simulate_flux_unchecked` runs as one compiled program, as
-    `simulate_unchecked` does (op by op, a first call compiled each operation: 4.6 s
-    against 1.2 s, and ``jax.grad`` of it called directly ran 0.17 s a call against
-    0.008 s): a new value compiles nothing, and ``jax.grad`` called directly compiles a few
-    programs, not one per operation, and matches central differences."""
+    `simulate_unchecked` does (op by op, a first call compiled each operation on its
+    own: benchmarks/RESULTS.md): a new value compiles nothing, and ``jax.grad`` called
+    directly compiles a few programs, not one per operation, and matches central
+    differences."""
     import logging
 
     drive = jh.sinusoidal_flux(300.0, 0.3, samples_per_period=57)  # (shapes of their own)

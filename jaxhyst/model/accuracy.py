@@ -9,9 +9,8 @@ the field moves far per substep (more than `SCREEN_STEP` of its range, where the
 
 `SamplingWarning` is raised where the estimate exceeds `ACCURACY` (the documented
 1e-5 of the signal's size), with the substeps that bring it below. The check's
-simulations are decided from the drive alone, so their programs compile in a background
-thread while the caller's own compiles (`checked_meanwhile`): on two cores a first call
-that is checked waits for the longest of them, not for their sum.
+simulations are decided from the drive alone, so the first one's program compiles in a
+background thread while the caller's own compiles (`checked_meanwhile`).
 """
 
 from __future__ import annotations

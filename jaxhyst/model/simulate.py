@@ -275,8 +275,8 @@ def simulate(
     estimated from the same simulation at twice the substeps, exceeds the documented
     1e-5 of max|y| (or of max|M|): only drives whose field moves more than 1 % of its
     range per substep are checked (one more simulation; with ``losses`` another at half
-    the sample step). Those simulations compile in a background thread while this one's
-    program compiles (`jaxhyst.model.accuracy.checked_meanwhile`).
+    the sample step). The first of them compiles in a background thread while this
+    one's program compiles, the second after it (`jaxhyst.model.accuracy.checked_meanwhile`).
 
     **Returns:** a `Simulation` with every signal, shape (T,); raises
     ``FloatingPointError`` (naming the first bad sample) if the simulation diverged
