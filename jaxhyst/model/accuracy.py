@@ -81,26 +81,40 @@ def refined(drive):
     return t2, x2, 2 * drive.run_in
 
 
-def checked_meanwhile(run, cases, simulation, usable) -> list:
-    """``[simulation(), run(*case) for each of cases]``: a simulation and its accuracy
-    check's (``cases`` decided from the drive alone, before it runs), the check's programs
-    compiled beside the simulation's own — the first case's in a background thread
+def checked_meanwhile(run, simulation, finite, drive, signal, substeps: int, losses,
+                      rebuild) -> tuple:
+    """A simulation and its accuracy check's simulations, the check's programs compiled
+    beside the simulation's own: ``(sim, mask, more_substeps, finer)``.
+
+    ``simulation()`` runs the simulation, ``run(drive, substeps)`` a check's; ``finite(sim)``
+    is the per-sample mask of its finite signals (``mask``). The check's simulations are
+    decided from the drive alone: ``more_substeps`` at twice the substeps where ``signal``
+    (the drive's observed driving samples) moves far per substep (`may_be_coarse`), and
+    with ``losses`` ``finer``, at half the sample step (`refined`; ``rebuild(t2, x2,
+    run_in2)`` makes that drive); each None where not simulated, both None where ``mask``
+    is not all true. The first one's program compiles in a background thread
     (`jaxhyst._background.meanwhile`, from the caller's first large lowering on), the
-    rest in the caller's thread after the simulation. ``usable(sim)``: whether the
-    simulation can be checked (finite); if not, ``[sim]`` alone. The thread is joined on
-    every way out."""
+    other's in the caller's thread after the simulation; the thread is joined on every
+    way out."""
     from .._background import meanwhile
 
+    coarse = may_be_coarse(signal, substeps)
+    finer = None if losses is None else rebuild(*refined(drive))
+    cases = ([(drive, 2 * substeps)] if coarse else []) + \
+        ([(finer, substeps)] if finer is not None else [])
     background = meanwhile(lambda: run(*cases[0])) if cases else None
     try:
         sim = simulation()
-        if not usable(sim):
-            return [sim]
+        mask = finite(sim)
+        if not mask.all():
+            return sim, mask, None, None
         later = [run(*case) for case in cases[1:]]
     finally:
         if background is not None:
             background.join()
-    return [sim, *([run(*cases[0])] if cases else []), *later]
+    checks = ([run(*cases[0])] if cases else []) + later
+    return (sim, mask, checks.pop(0) if coarse else None,
+            checks.pop(0) if finer is not None else None)
 
 
 def substeps_for(error: float, substeps: int) -> int:

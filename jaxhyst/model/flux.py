@@ -50,8 +50,6 @@ from .accuracy import (
     FLUX_ACCURACY,
     SamplingWarning,
     checked_meanwhile,
-    may_be_coarse,
-    refined,
     richardson_error,
     step_error,
     substeps_for,
@@ -291,29 +289,19 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
     after_effect = bool(after_effect)
     if not is_concrete((params, drive, variant, losses)):  # (traced: nothing to check)
         return _simulate_flux_jit(params, drive, variant, substeps, losses, after_effect)
-    # the accuracy check's simulations (decided from the drive alone; compiled beside
-    # this one's): more substeps where B moves far per substep, with losses the drive at
-    # half the sample step
-    coarse = may_be_coarse(np.asarray(drive.observed(drive.B)), substeps)
-    cases = [(drive, 2 * substeps)] if coarse else []
-    if losses is not None:
-        t2, B2, run_in2 = refined(drive)
-        cases.append((FluxDrive(t2, B2, run_in2, drive.uniform), substeps))
-    sims = checked_meanwhile(
-        lambda d, s: _simulate_flux_jit(params, d, variant, s, losses, after_effect), cases,
+    sim, finite, more_substeps, finer = checked_meanwhile(
+        lambda d, s: _simulate_flux_jit(params, d, variant, s, losses, after_effect),
         lambda: _simulate_flux_jit(params, drive, variant, substeps, losses, after_effect),
-        lambda sim: bool(np.all(np.isfinite(np.asarray(sim.H)))))
-    sim = sims[0]
-    finite = np.isfinite(np.asarray(sim.H))
-    if finite.all():
-        _check_accuracy(substeps, sim, sims[1] if coarse else None,
-                        sims[-1] if losses is not None else None)
+        lambda sim: np.isfinite(np.asarray(sim.H)),
+        drive, np.asarray(drive.observed(drive.B)), substeps, losses,
+        lambda t2, B2, run_in2: FluxDrive(t2, B2, run_in2, drive.uniform))
     if not finite.all():
         i = int(np.flatnonzero(~finite)[0])
         raise FloatingPointError(
             f"The B-driven simulation diverged from sample {i} (t = {float(drive.t[i]):g} s, "
             f"B = {float(drive.B[i]):g} T) on: the parameters or the flux density lie "
             "outside the model's range (a B above μ0·(H + Ms) cannot be reached).")
+    _check_accuracy(substeps, sim, more_substeps, finer)
     return sim
 
 

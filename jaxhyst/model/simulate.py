@@ -38,8 +38,6 @@ from .accuracy import (
     RATE_ACCURACY,
     SamplingWarning,
     checked_meanwhile,
-    may_be_coarse,
-    refined,
     richardson_error,
     sampling_message,
     step_error,
@@ -288,22 +286,12 @@ def simulate(
     _check_single(params, drive)
     if not is_concrete((params, actuator, drive, variant, losses)):  # (traced: no check)
         return _simulate_jit(params, actuator, drive, variant, substeps, losses)
-    # the check's simulations (from the drive alone): more substeps where the field moves
-    # far per substep, with losses the drive at half the sample step
-    coarse = may_be_coarse(np.asarray(drive.observed(drive.H)), substeps)
-    finer = None
-    if losses is not None:
-        t2, H2, run_in2 = refined(drive)
-        finer = Drive(t2, H2, run_in2, drive.uniform, drive.periodic)
-    cases = ([(drive, 2 * substeps)] if coarse else []) + \
-        ([(finer, substeps)] if finer is not None else [])
-    fines = checked_meanwhile(
-        lambda d, s: _simulate_jit(params, actuator, d, variant, s, losses), cases,
+    sim, finite, fine, finer = checked_meanwhile(
+        lambda d, s: _simulate_jit(params, actuator, d, variant, s, losses),
         lambda: _simulate_jit(params, actuator, drive, variant, substeps, losses),
-        lambda sim: bool(np.all(np.isfinite(np.asarray(sim.M)))
-                         & np.all(np.isfinite(np.asarray(sim.y)))))
-    sim = fines.pop(0)
-    finite = np.isfinite(np.asarray(sim.M)) & np.isfinite(np.asarray(sim.y))  # (no compile)
+        lambda sim: np.isfinite(np.asarray(sim.M)) & np.isfinite(np.asarray(sim.y)),
+        drive, np.asarray(drive.observed(drive.H)), substeps, losses,
+        lambda t2, H2, run_in2: Drive(t2, H2, run_in2, drive.uniform, drive.periodic))
     if not finite.all():
         bad = np.flatnonzero(~finite)
         i = int(bad[0])
@@ -312,16 +300,14 @@ def simulate(
             f"{float(drive.t[i]):g} s, H = {float(drive.H[i]):g} A/m) on; the parameters or "
             "the drive lie outside the model's range. (simulate_unchecked returns the NaN "
             "instead of raising.)")
-    if coarse:
-        fine = fines.pop(0)
+    if fine is not None:  # (at twice the substeps)
         error = max(richardson_error(sim.observed(name), fine.observed(name))
                     for name in ("M", "y"))
         message = sampling_message(error, substeps, "the simulation (M, y)")
         if message is not None:
             warnings.warn(message, SamplingWarning, stacklevel=2)
     if finer is not None:  # the field balance: second order in the sample step
-        fine = fines.pop(0)
-        error = max(step_error(sim.observed(name), fine.observed(name)[..., ::2])
+        error = max(step_error(sim.observed(name), finer.observed(name)[..., ::2])
                     for name in ("M", "y"))
         if error > RATE_ACCURACY:
             warnings.warn(f"the sampling is too coarse for the rate-dependent model: the "
