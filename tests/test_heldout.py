@@ -308,6 +308,18 @@ def test_loops_at_several_frequencies_get_rate_dependent_candidates_by_default()
     assert chosen([], peaks(15.0, 100.0, 104.0)) == CANDIDATES
     assert chosen([], peaks(15.0, 15.5, 100.0, 104.0)) == (*CANDIDATES, AMPLITUDE_CANDIDATE)
     assert chosen(["--vary", "k:log_amplitude"], peaks(15.0, 36.0, 107.0)) == CANDIDATES
+    # a B-driven fit's law reads the peak flux density: loops near saturation, whose peak
+    # fields span amplitudes but whose peak B do not, give its folds no slope to fit
+    def saturated(*fields_and_B):
+        return [SimpleNamespace(conditions={}, t=None, H=h * np.sin(np.arange(9.0)), I=None,
+                                signals={"B": b * np.sin(np.arange(9.0))})
+                for h, b in fields_and_B]
+
+    near = saturated((300.0, 1.50), (900.0, 1.52), (2700.0, 1.54))
+    assert chosen([], near) == (*CANDIDATES, AMPLITUDE_CANDIDATE)
+    assert chosen(["--driven-by", "B"], near) == CANDIDATES
+    assert chosen(["--driven-by", "B"], saturated((15.0, 0.08), (36.0, 0.19), (107.0, 0.34))) \
+        == (*CANDIDATES, AMPLITUDE_CANDIDATE)
     # a candidate's own law: one parameter, of its form, not also in --vary
     assert chosen(["--variant", "classic,play@spread:log_amplitude"], None) == \
         ("classic", "play@spread:log_amplitude")

@@ -36,14 +36,18 @@ def split_candidate(candidate: str) -> tuple[str, list[str], str]:
     return form, losses, law
 
 
-def _spans_amplitudes(loops, factor: float = 1.1) -> bool:
-    """Three loops or more whose peak drives (|H| or |I|) lie more than ``factor`` apart
-    without any one of them: every fold's training loops span amplitudes (a law in the
-    amplitude needs two)."""
+def _spans_amplitudes(loops, by_B: bool = False, factor: float = 1.1) -> bool:
+    """Three loops or more whose amplitudes lie more than ``factor`` apart without any
+    one of them: every fold's training loops span amplitudes (a law in the amplitude
+    needs two). The amplitude is the one the law reads (`problems.law_conditions`): the
+    peak drive |H| or |I|, or the peak flux density |B| where ``by_B`` (a B-driven fit)."""
     import numpy as np
 
-    peaks = [float(np.max(np.abs(lp.H if lp.H is not None else lp.I))) for lp in loops
-             if lp.H is not None or lp.I is not None]
+    def peak(lp):
+        x = lp.signals.get("B") if by_B else lp.H if lp.H is not None else lp.I
+        return None if x is None else float(np.max(np.abs(x)))
+
+    peaks = [p for p in map(peak, loops) if p is not None]
     if len(loops) < 3 or len(peaks) != len(loops):
         return False
     folds = [peaks[:i] + peaks[i + 1:] for i in range(len(peaks))]
@@ -90,7 +94,8 @@ def candidates(args, loops=None) -> list[str]:
         rated = loops is not None and spans_frequencies(loops) and \
             all(lp.t is not None for lp in loops) and not args.losses and \
             not any("log_f" in f for f in parse_vary(args.vary).values())
-        lawful = loops is not None and not args.vary and _spans_amplitudes(loops)
+        lawful = loops is not None and not args.vary and \
+            _spans_amplitudes(loops, getattr(args, "driven_by", "H") == "B")
         return list(RATE_CANDIDATES if rated else
                     CANDIDATES + ((AMPLITUDE_CANDIDATE,) if lawful else ()))
     forms = [f.strip() for f in args.variant.split(",") if f.strip()]
