@@ -469,6 +469,8 @@ def test_a_local_solve_traces_each_time_loop_once(monkeypatch):
     # partials pass (linearized in the solver's init and again in its step, under vmap)
     # are each traced once; a drive length no other test uses keeps the count fresh. (The
     # sampling check of a coarse drive runs the loop at twice the substeps: another loop.)
+    # (Without the traces kept on disk, which would skip tracing the solve's programs.)
+    monkeypatch.setenv("JAXHYST_TRACE_CACHE", "off")
     calls = []
     for name, at in (("_loop", 4), ("_sensitivity_loop", 4)):
         original = getattr(timeloop, name)

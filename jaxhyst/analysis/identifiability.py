@@ -34,11 +34,11 @@ multiplied by s^{v_r}. For a parameter at exactly 0 the box width is used as its
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._traces import kept_jit
 from ..identify.problem import content_digest
 from ..identify.result import bound_status
 from ..identify.summary import free_values_of
@@ -110,8 +110,8 @@ def whiten(problem, J, e, x0, scale):
     return Jw, ew, sigma
 
 
-_log_jacobian = eqx.filter_jit(whitened_log_jacobian)
-_whiten = eqx.filter_jit(whiten)
+_log_jacobian = kept_jit(whitened_log_jacobian)
+_whiten = kept_jit(whiten)
 
 
 def _whitened(problem, values, scale, linearization):

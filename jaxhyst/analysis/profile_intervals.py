@@ -46,6 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._background import wait_for
+from .._traces import kept_jit
 from ..identify import solve_traced
 from ..identify.problem import cost_at
 from ..identify.result import stopped_short
@@ -139,7 +140,7 @@ def compile_refits(problem, solver: str = "lm", max_steps: int = STEPS) -> None:
                       jnp.zeros_like(lower), np.int64(max_steps)).compile()
 
 
-@eqx.filter_jit
+@kept_jit
 def _held_costs(problem, solver, lowers, uppers, z0s, max_steps):
     """``problem`` re-fitted in each member's box (a held parameter has lower = upper),
     from each member's start: (costs (B,), the solutions' solver coordinates (B, n))."""

@@ -17,6 +17,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .._traces import kept_jit
 from ..model.inverse import (
     field_for_magnetization,
     magnetization_for_magnetostriction,
@@ -47,7 +48,7 @@ class InverseInput(eqx.Module):
 _magnetization = eqx.filter_jit(magnetization_for_magnetostriction)
 
 
-@eqx.filter_jit
+@kept_jit
 def _field(p, M, variant, substeps):
     return field_for_magnetization(p, M, variant, substeps)
 

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._traces import kept_jit
 from ..params import Parameters
 from .refine import RESIDUAL_UNIT, TrackingResiduals
 from .signals import estimate_delay, low_pass
@@ -46,7 +47,7 @@ class Step(NamedTuple):
     linear: float
 
 
-@eqx.filter_jit
+@kept_jit
 def _jacobian(residuals: TrackingResiduals, z):
     return jax.jacfwd(lambda z: residuals(z)[: residuals.r.shape[0]])(z)
 

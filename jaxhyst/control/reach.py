@@ -23,6 +23,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from .._traces import kept_jit
 from ..model.paths import hysteresis_path
 from ..saved import Model
 from .limits import InputLimits
@@ -43,7 +44,7 @@ class Reach(eqx.Module):
     sign: float = eqx.field(static=True)
 
 
-@eqx.filter_jit
+@kept_jit
 def _sweep_magnetization(p, H, variant, substeps):
     M_sub, _, _, _ = hysteresis_path(variant, p, None, H, substeps=substeps)
     return M_sub[:, -1]

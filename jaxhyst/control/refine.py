@@ -12,6 +12,7 @@ import numpy as np
 import optimistix as optx
 
 from .._interrupt import stop_requested
+from .._traces import kept_jit
 from ..identify import TargetTermination, jacobian_linearized
 from .limits import InputMap
 from .tracking import Tracking, evaluate
@@ -49,7 +50,7 @@ class TrackingResiduals(eqx.Module):
         return float(e @ e + extra @ extra)
 
 
-@eqx.filter_jit
+@kept_jit
 def least_squares(residuals, z0, max_steps, rtol, atol, target):
     """Levenberg–Marquardt from z0, stopped also once Σr² ≤ ``target``: (z, whether it
     converged, steps)."""

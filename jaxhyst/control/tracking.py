@@ -22,6 +22,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .._traces import kept_jit
 from .._typing import Array, Float
 from ..drive import Drive
 from ..model.simulate import Simulation
@@ -114,7 +115,7 @@ class Tracking(eqx.Module):
         return y[self.run_in: self.run_in + self.n]
 
 
-@eqx.filter_jit
+@kept_jit
 def _period_starts(tracking: Tracking, u):
     sim = tracking.simulation(u)
     starts = tracking.n_ramp + tracking.n * jnp.arange(tracking.run_in_periods + 1)
@@ -150,7 +151,7 @@ def evaluate(tracking: Tracking, u) -> np.ndarray:
     return np.asarray(_displacement(tracking, jnp.asarray(u)))
 
 
-@eqx.filter_jit
+@kept_jit
 def _displacement(tracking, u):
     return tracking.displacement(u)
 

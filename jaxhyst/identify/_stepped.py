@@ -30,6 +30,7 @@ import numpy as np
 import optimistix as optx
 
 from .._background import settled as _settled
+from .._traces import kept_jit
 from ..model.simulate import plain_vmap
 from ._objective import objective
 from .problem import AbstractProblem
@@ -137,15 +138,23 @@ def _mark_overtaken(mask, result):
 _ended_jit = jax.jit(_ended)  # (op by op, each operation would compile on its own)
 
 
-@eqx.filter_jit
+def _static(problem, solver, carry):
+    """The static part of the solver state of a batch's solves (what `init` returns
+    beside the carry: the same for every start), made inside the trace from the first
+    start's point, so that a batch program's arguments are arrays and structure only
+    (its trace can be kept: `jaxhyst._traces`)."""
+    return init(problem, solver, carry[0][0])[1]
+
+
+@kept_jit
 def _init_batch(problem, solver, z0s):
-    return eqx.filter_vmap(lambda z: init(problem, solver, z),
-                           out_axes=eqx.if_array(0))(z0s)
+    return jax.vmap(lambda z: init(problem, solver, z)[0])(z0s)
 
 
-@eqx.filter_jit
-def _advance_batch(problem, solver, static, carry, n, max_steps, with_cost):
+@kept_jit
+def _advance_batch(problem, solver, carry, n, max_steps, with_cost):
     run, _, _ = objective(problem, solver)
+    static = _static(problem, solver, carry)
 
     def one(c):
         c = advance(problem, solver, static, c, n, max_steps)
@@ -163,8 +172,9 @@ def _advance_batch(problem, solver, static, carry, n, max_steps, with_cost):
     return jax.vmap(one)(carry)
 
 
-@eqx.filter_jit
-def _finish_batch(problem, solver, static, carry):
+@kept_jit
+def _finish_batch(problem, solver, carry):
+    static = _static(problem, solver, carry)
     return jax.vmap(lambda c: finish(problem, solver, static, c))(carry)
 
 
@@ -230,7 +240,7 @@ class SteppedSolve:
         self.tracing = plain_vmap if isinstance(solver, optx.AbstractMinimiser) else \
             contextlib.nullcontext
         with self.tracing():
-            self.state, self.static = _init_batch(problem, solver, np.asarray(z0s))
+            self.state = _init_batch(problem, solver, np.asarray(z0s))
         self.chunk, self.costs, self.started = 1, None, time.perf_counter()
         self.best_before = None  # (the best cost at the last check: `_settling`)
         self.linearizations = None
@@ -271,7 +281,7 @@ class SteppedSolve:
     def advance(self, carry):
         t0 = time.perf_counter()
         with self.tracing():
-            carry, costs = _advance_batch(self.problem, self.solver, self.static, carry,
+            carry, costs = _advance_batch(self.problem, self.solver, carry,
                                           np.int64(self.chunk), self.max_steps,
                                           self.with_cost)
         jax.block_until_ready(carry)
@@ -296,7 +306,7 @@ class SteppedSolve:
         # on the host at once (indexing device arrays compiles a small program per shape)
         with self.tracing():
             *out, known, linear = jax.device_get(_finish_batch(self.problem, self.solver,
-                                                               self.static, carry))
+                                                               carry))
         if linear is not None:
             lost = ~np.asarray(known)
             self.linearizations = tuple(np.where(lost.reshape((-1,) + (1,) * (a.ndim - 1)),

@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._traces import kept_jit
 from .._typing import Array, Float
 from .space import ParameterSpace, u_from_z
 
@@ -180,7 +181,7 @@ def content_digest(problem) -> str:
     return h.hexdigest()
 
 
-@eqx.filter_jit
+@kept_jit
 def cost_at(problem, z) -> jax.Array:
     """``problem.cost(z)`` by one compiled program, for host code that needs a cost at a
     point (called op by op, a cost compiles a simulation program and a few dozen single

@@ -42,6 +42,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .._traces import kept_jit
 from .._typing import Array, Float, Signal
 from ..drive import UNIFORM_TOLERANCE, Drive
 from ..names import DEFAULT_SUBSTEPS
@@ -249,7 +250,7 @@ def _simulation(params, drive, H, H_hyst, M, per_interval, bad) -> FluxSimulatio
                           cycle_energy=energy, run_in=drive.run_in)
 
 
-_simulate_flux_jit = eqx.filter_jit(_simulate_flux)
+_simulate_flux_jit = kept_jit(_simulate_flux)
 
 
 def simulate_flux(params: Parameters, drive: FluxDrive,

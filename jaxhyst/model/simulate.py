@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._jax_compat import under_jit, under_vmap
+from .._traces import kept_jit
 from .._typing import Array, Bool, Float, Signal
 from ..actuator import Actuator
 from ..drive import Drive
@@ -142,7 +143,7 @@ def _simulate(params, actuator, drive, variant, substeps, losses=None) -> Simula
                       y=y, velocity=v, strain=y / actuator.lr, run_in=drive.run_in)
 
 
-_simulate_jit = eqx.filter_jit(_simulate)
+_simulate_jit = kept_jit(_simulate)
 
 #: Set while `plain_vmap` is active: a vmap traces the work after the time loop plainly.
 _PLAIN_VMAP: list = []

@@ -1,0 +1,125 @@
+"""Traces kept on disk (`jaxhyst._traces`, issue 45): a later process loads a fit's
+programs instead of tracing them, with the same values; the key tells apart everything
+that changes a trace; what it cannot describe, or a damaged file, falls back to tracing."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxhyst as jh
+from jaxhyst import _traces
+from jaxhyst.identify import _stepped
+from jaxhyst.identify.problem import cost_at
+
+DRIVE = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=60)
+FIXED = ["Ms", "lambda_s", "alpha", "E", "Kz", "Mz", "Cz"]
+
+
+def _problem(substeps=2, drive=DRIVE):
+    return jh.synthetic_problem(jh.TABLE1_TRUE, drive, jh.ACTUATOR1, jh.TABLE1_BOUNDS,
+                                fixed=FIXED, substeps=substeps)
+
+
+@pytest.fixture
+def kept(tmp_path, monkeypatch):
+    """Traces kept in ``tmp_path`` (the compilation cache stays where it is), none in
+    memory before or after."""
+    if not jax.config.jax_compilation_cache_dir:
+        jh.enable_compilation_cache(tmp_path / "xla")
+    monkeypatch.delenv("JAXHYST_TRACE_CACHE", raising=False)
+    monkeypatch.setattr(_traces, "_directory", lambda: tmp_path / "traces")
+    _traces.forget()
+    yield
+    _traces.forget()
+
+
+def _fit(problem):
+    starts = jh.Parameters.from_array(np.stack([
+        jh.TABLE1_TRUE.replace(a=a, k=k, c=c).to_array()
+        for a, k, c in ((6000.0, 3800.0, 0.15), (8000.0, 2500.0, 0.3))]))
+    return jh.multistart(problem, starts, max_steps=8, report=False)
+
+
+@pytest.mark.compat  # (jax.export's serialization and Exported's fields, oldest jax too)
+def test_a_later_process_loads_a_fits_programs_with_the_same_values(kept, tmp_path,
+                                                                    monkeypatch):
+    problem = _problem()
+    first = _fit(problem)
+    files = _files(tmp_path)
+    assert files  # (the start, step and end programs of the batch)
+    _traces.forget()  # (as a new process: nothing in memory)
+    traced = []
+    real = _stepped.advance
+    monkeypatch.setattr(_stepped, "advance", lambda *a: traced.append(1) or real(*a))
+    again = _fit(problem)
+    assert not traced  # the step's program was loaded, not traced
+    # nothing new was kept: the reloaded outputs keep their weak types, so the next
+    # chunk's key is the first one's
+    assert _files(tmp_path) == files
+    monkeypatch.setattr(_stepped, "advance", real)
+    monkeypatch.setenv("JAXHYST_TRACE_CACHE", "off")  # (plain eqx.filter_jit)
+    plain = _fit(problem)
+    for fit in (again, plain):
+        assert np.array_equal(np.asarray(fit.params.to_array()),
+                              np.asarray(first.params.to_array()))
+        assert fit.cost == first.cost and fit.steps == first.steps
+
+
+def test_the_key_tells_apart_what_changes_a_trace(kept, monkeypatch):
+    def key(*args):
+        leaves, treedef = jax.tree.flatten(args)
+        return _traces._key("jaxhyst.identify.problem.cost_at", leaves, treedef)
+
+    z = jnp.zeros(3)
+    base = key(_problem(), z)
+    assert key(_problem(), jnp.ones(3)) == base  # (values of arrays are data)
+    assert key(_problem(substeps=4), z) != base  # (structure)
+    assert key(_problem(), jnp.zeros(4)) != base  # (a shape)
+    assert key(_problem(), jnp.asarray(0.0) + z) == base
+    assert key(_problem(), 1.0) != key(_problem(), 2.0)  # (a Python number is static)
+    longer = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=64)
+    assert key(_problem(drive=longer), z) != base
+    from jaxhyst.model import interval, play
+
+    monkeypatch.setattr(play, "NEWTON_STEPS", play.NEWTON_STEPS + 1)  # (a constant)
+    assert key(_problem(), z) != base
+    monkeypatch.undo()
+    monkeypatch.setattr(interval, "FORCE_BRANCH_FREE", True)  # (the branch-free loops)
+    assert key(_problem(), z) != base
+
+
+def _files(tmp_path) -> set:
+    return {p for p in (tmp_path / "traces").rglob("*") if p.is_file()}
+
+
+def test_what_the_key_cannot_describe_is_traced_as_before(kept, tmp_path):
+    problem = _problem()
+    z = jnp.full(3, 0.3)
+    before = _files(tmp_path)
+    value = cost_at(problem, z)
+    mine = _files(tmp_path) - before
+    assert mine  # (the cost's program)
+    with pytest.raises(_traces._Undescribed):
+        _traces._describe(lambda x: x)  # (a closure's captured values are not in the key)
+    with pytest.raises(_traces._Undescribed):
+        _traces._describe(object())
+    assert _traces._describe(jh.Losses(0.1, 0.2)) == _traces._describe(jh.Losses(0.1, 0.2))
+    assert _traces._describe(jh.Losses(0.1, 0.2)) != _traces._describe(jh.Losses(0.1, 0.3))
+    # a damaged file is traced again and replaced
+    for path in mine:
+        path.write_bytes(b"not a kept trace")
+    _traces.forget()
+    assert float(cost_at(problem, z)) == float(value)
+    assert all(p.read_bytes() != b"not a kept trace" for p in mine)
+
+
+def test_calls_inside_a_trace_are_plain(kept, tmp_path):
+    problem = _problem()
+    before = _files(tmp_path)
+    grad = jax.grad(lambda v: cost_at(problem, v))(jnp.full(3, 0.3))  # (under a transform)
+    assert _files(tmp_path) == before
+    assert np.all(np.isfinite(np.asarray(grad)))
+    assert _stepped._advance_batch.__wrapped__.__name__ == "_advance_batch"
