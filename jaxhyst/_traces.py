@@ -11,6 +11,8 @@ depends on:
 - the function (module and qualified name) and a digest of jaxhyst's own source files;
 - the versions of jax, jaxlib, equinox, optimistix, lineax and numpy, the platform and
   the JAX settings that change a trace;
+- the traced modules' constants as they are now (`_constants`: a test or a program may
+  change one) and the other trace-time switches (`SWITCHES`);
 - the arguments' structure, every non-array value in it (Equinox static fields, Python
   numbers, named functions, arrays held as constants: by their bytes) and every array's
   shape, dtype and weak type.
@@ -92,6 +94,9 @@ def _environment() -> tuple:
 
 
 _SIMPLE = (bool, int, float, str, type(None))
+#: Trace-time switches that are not module constants (name → a function that returns
+#: the state, described by its repr): each module that has one registers it here.
+SWITCHES: dict = {}
 
 
 @functools.cache
@@ -185,13 +190,9 @@ def _structure(treedef) -> object:
 
 def _key(name: str, leaves, treedef) -> str:
     """The key of the call ``name(*args)`` (``leaves``, ``treedef``: the arguments)."""
-    from .model.interval import on_accelerator  # (these switches change traces)
-    from .model.simulate import _PLAIN_VMAP
-    from .sharding import CPU_BLOCK
-
     parts = [_environment(), _constants(), name,
              tuple((s, repr(getattr(jax.config, s, None))) for s in _SETTINGS),
-             (on_accelerator(), tuple(_PLAIN_VMAP), CPU_BLOCK),
+             tuple((n, repr(state())) for n, state in sorted(SWITCHES.items())),
              _structure(treedef)]
     for x in leaves:
         if eqx.is_array(x):

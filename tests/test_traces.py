@@ -89,6 +89,12 @@ def test_the_key_tells_apart_what_changes_a_trace(kept, monkeypatch):
     monkeypatch.undo()
     monkeypatch.setattr(interval, "FORCE_BRANCH_FREE", True)  # (the branch-free loops)
     assert key(_problem(), z) != base
+    monkeypatch.undo()
+    from jaxhyst.model.simulate import plain_vmap
+
+    with plain_vmap():  # (a switch that is not a constant)
+        assert key(_problem(), z) != base
+    assert key(_problem(), z) == base
 
 
 def _files(tmp_path) -> set:

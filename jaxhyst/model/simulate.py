@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _traces
 from .._jax_compat import under_jit, under_vmap
 from .._traces import kept_jit
 from .._typing import Array, Bool, Float, Signal
@@ -147,6 +148,7 @@ _simulate_jit = kept_jit(_simulate)
 
 #: Set while `plain_vmap` is active: a vmap traces the work after the time loop plainly.
 _PLAIN_VMAP: list = []
+_traces.SWITCHES["plain_vmap"] = lambda: bool(_PLAIN_VMAP)  # (a kept trace's key holds it)
 
 
 @contextlib.contextmanager
