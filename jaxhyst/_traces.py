@@ -201,12 +201,7 @@ def _key(name: str, leaves, treedef) -> str:
                           bool(aval.weak_type) if aval is not None else False))
         else:
             parts.append(_describe(x))
-    text = repr(parts)
-    key = hashlib.sha256(text.encode()).hexdigest()
-    if os.environ.get("JAXHYST_TRACE_DEBUG"):
-        with open(os.path.join(os.environ["JAXHYST_TRACE_DEBUG"], f"{name}-{key}.txt"), "w") as fh:
-            fh.write(text.replace("), (", "),\n("))
-    return key
+    return hashlib.sha256(repr(parts).encode()).hexdigest()
 
 
 class _Slot:
