@@ -231,7 +231,7 @@ def _load(path: Path):
                                                                strict=True))), skeleton
 
 
-def _export(fn, args, is_arr, leaves, treedef, path: Path):
+def _export(fn, is_arr, leaves, treedef, path: Path):
     """Trace and lower ``fn`` once by exporting it; save it under ``path``."""
     fixed = [None if a else x for x, a in zip(leaves, is_arr, strict=True)]
     shapes = {}
@@ -312,7 +312,7 @@ def kept_jit(fn):
         with one:  # (a background compile and the caller may ask for one key at once)
             kept = memory.get(key)
             if kept is None:
-                kept = _kept(fn, args, leaves, treedef, key)
+                kept = _kept(fn, leaves, treedef, key)
                 with lock:
                     memory[key] = kept
                     while len(memory) > _KEPT:
@@ -340,7 +340,7 @@ def kept_jit(fn):
     return call
 
 
-def _kept(fn, args, leaves, treedef, key):
+def _kept(fn, leaves, treedef, key):
     """The kept trace of this call (loaded, or exported and saved), or False where it
     cannot be kept (the call then goes to ``eqx.filter_jit``)."""
     path = _directory() / key[:2] / key
@@ -356,7 +356,7 @@ def _kept(fn, args, leaves, treedef, key):
             exported = None
     if exported is None:
         try:
-            exported, skeleton = _export(fn, args, is_arr, leaves, treedef, path)
+            exported, skeleton = _export(fn, is_arr, leaves, treedef, path)
         except Exception:  # noqa: BLE001  (not exportable: a host callback, …)
             try:
                 refused.parent.mkdir(parents=True, exist_ok=True)
