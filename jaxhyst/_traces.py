@@ -115,12 +115,32 @@ def _traced_modules() -> tuple:
     return tuple(importlib.import_module(n) for n in sorted(set(names)))
 
 
-def _constants() -> tuple:
-    """Those modules' constants (upper-case names of numbers, strings, switches) as they
-    are now: a trace reads some of them, and a program or a test may change one."""
-    return tuple((m.__name__, tuple((k, repr(v)) for k, v in vars(m).items()
-                                    if k.lstrip("_").isupper() and isinstance(v, _SIMPLE)))
+@functools.cache
+def _constant_names() -> tuple:
+    """(module, its constants' names): upper-case names of numbers, strings, switches."""
+    return tuple((m, tuple(k for k, v in vars(m).items()
+                           if k.lstrip("_").isupper() and isinstance(v, _SIMPLE)))
                  for m in _traced_modules())
+
+
+#: (the constants' values last described, their description): `_constants`.
+_LAST_CONSTANTS: tuple = (None, None)
+
+
+def _constants() -> str:
+    """A digest of those modules' constants as they are now: a trace reads some of them,
+    and a program or a test may change one. (Described again only where a value is not
+    the one last described: a call's key does not walk through every module.)"""
+    values = [getattr(m, k, None) for m, names in _constant_names() for k in names]
+    global _LAST_CONSTANTS
+    last, described = _LAST_CONSTANTS
+    if last is None or len(last) != len(values) or \
+            any(a is not b for a, b in zip(values, last, strict=True)):
+        described = hashlib.sha256(repr(tuple(
+            (m.__name__, tuple((k, repr(getattr(m, k, None))) for k in names))
+            for m, names in _constant_names())).encode()).hexdigest()
+        _LAST_CONSTANTS = (values, described)
+    return described
 
 
 def _named(obj) -> tuple:
