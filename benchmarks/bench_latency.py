@@ -212,6 +212,8 @@ def compiles() -> list[tuple[str, str]]:
                                  current_limit=2.5))
     second("compensate: new tolerance", lambda: None,
            lambda: jh.compensate(model, ref, current_limit=2.5, tolerance=1e-4))
+    second("compensate: new step limit (max_steps 7)", lambda: None,
+           lambda: jh.compensate(model, ref, current_limit=2.5, max_steps=7))
     drive = lambda f: jh.sinusoidal_current(f, 0.77, 1.53, jh.ACTUATOR1)  # noqa: E731
     second("simulate (rate-dependent): new frequency and loss value",
            lambda: jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive(100.0),

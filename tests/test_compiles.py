@@ -59,8 +59,9 @@ def test_the_counter_counts():
 MODEL = jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1)
 
 
-def test_compensate_compiles_nothing_for_a_new_limit_frequency_or_tolerance():
-    """… and its first call compiles the refinement's program in a background thread
+def test_compensate_compiles_nothing_for_a_new_limit_frequency_tolerance_or_step_count():
+    """… (a step count below the refinement's chunk is data too: its program runs at most
+    `CHUNK` steps) and its first call compiles the refinement's program in a background thread
     while the model's compile, and the inverse path's and the settling check's while the
     reach is swept (each once: not again in the caller's), leaving no thread."""
     ref = sinusoidal_reference(100.0, 20e-6, 45e-6, samples_per_period=98)  # (its own shape)
@@ -75,7 +76,9 @@ def test_compensate_compiles_nothing_for_a_new_limit_frequency_or_tolerance():
     with counting() as compiled:
         jh.compensate(MODEL, ref, current_limit=2.2, max_steps=3)
         jh.compensate(MODEL, other, current_limit=(-0.5, 2.6), max_steps=3, tolerance=1e-4)
+        capped = jh.compensate(MODEL, ref, current_limit=2.5, max_steps=2, tolerance=0.0)
     assert compiled.names == []
+    assert capped.steps == 2 and capped.outcome == "max_steps_reached", capped.to_dict()
 
 
 def test_simulate_and_simulate_flux_compile_nothing_for_a_new_frequency_or_loss_value():

@@ -259,8 +259,8 @@ def _compile_refinement(residuals: TrackingResiduals, z0, max_steps: int):
     joins it. Called as `refine_input` first calls it, with the target ∞ (data: the same
     program) so that it stops after a step; the result is dropped."""
     z0 = jnp.asarray(z0)
-    return meanwhile(lambda: least_squares(residuals, z0, min(CHUNK, int(max_steps)), RTOL,
-                                           ATOL, jnp.asarray(np.inf, dtype=jnp.float64)))
+    return meanwhile(lambda: least_squares(residuals, z0, np.int64(min(CHUNK, int(max_steps))),
+                                           RTOL, ATOL, jnp.asarray(np.inf, dtype=jnp.float64)))
 
 
 def _model_of(model) -> Model:
@@ -294,6 +294,10 @@ def compensate(model: Model, reference: Reference, *, current_limit=None,
       fraction of the reference's peak-to-peak (default 1e-6, below the model's own
       accuracy; 0: until Levenberg–Marquardt converges), or after ``max_steps``.
     - ``progress``: True or a `jaxhyst.progress` meter: a line per stage.
+
+    A new value of a limit, the frequency, ``tolerance`` or ``max_steps`` is data:
+    nothing compiles again. A reference of a new length, a slew limit added or removed,
+    or a model of another form or substeps compiles its programs.
 
     **Returns:** a `Compensation`. Every input sample lies inside the limits. Warns
     (`UnreachableWarning`) where the reference asks for more than the actuator can do:

@@ -51,12 +51,13 @@ class TrackingResiduals(eqx.Module):
 
 
 @kept_jit
-def least_squares(residuals, z0, max_steps, rtol, atol, target):
-    """Levenberg–Marquardt from z0, stopped also once Σr² ≤ ``target``: (z, whether it
-    converged, steps)."""
+def least_squares(residuals, z0, steps, rtol, atol, target):
+    """Levenberg–Marquardt from z0 for at most ``steps`` (an integer array, ≤ `CHUNK`:
+    data, one program for every count), stopped also once Σr² ≤ ``target``: (z, whether
+    it converged, steps taken)."""
     fn = jacobian_linearized(residuals)
-    solver = TargetTermination(optx.LevenbergMarquardt(rtol=rtol, atol=atol), target)
-    sol = optx.least_squares(fn, solver, z0, max_steps=max_steps, throw=False,
+    solver = TargetTermination(optx.LevenbergMarquardt(rtol=rtol, atol=atol), target, steps)
+    sol = optx.least_squares(fn, solver, z0, max_steps=CHUNK, throw=False,
                              options={"jac": "fwd"})
     return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
 
@@ -125,8 +126,8 @@ def refine_input(residuals: TrackingResiduals, z0, max_steps: int, target: float
     cost = residuals.cost(z)
     target = jnp.asarray(target, dtype=jnp.float64)  # (data: a new tolerance compiles nothing)
     while True:
-        z_new, ok, n = least_squares(residuals, z, min(CHUNK, max_steps - steps), RTOL,
-                                      ATOL, target)
+        z_new, ok, n = least_squares(residuals, z, np.int64(min(CHUNK, max_steps - steps)),
+                                      RTOL, ATOL, target)
         steps += int(n)
         new_cost = residuals.cost(z_new)
         if new_cost <= cost:

@@ -333,17 +333,26 @@ class TargetTermination(AbstractTerminationWrapper):
     is at most ``target``: a solve that only has to be as accurate as its model (a
     compensating input refined to the model's own accuracy) need not run on to
     round-off. Reads the Gauss–Newton state (module docstring). ``target = 0`` leaves
-    the inner solver's termination alone."""
+    the inner solver's termination alone. ``budget`` (an integer array, or None): stop
+    after that many steps as ``max_steps`` would (``nonlinear_max_steps_reached``), a
+    count that is data — one program for every budget up to the solve's ``max_steps``."""
 
     inner: optx.AbstractLeastSquaresSolver
     target: float
+    budget: object = None
 
     def step(self, fn, y, args, options, state, tags):
         y_new, new_state, aux = self.inner.step(fn, y, args, options, state, tags)
         accepted = (new_state.num_accepted_steps > state.num_accepted_steps) & ~state.first_step
         reached = jnp.sum(new_state.f_info.residual ** 2) <= self.target
         terminate = new_state.terminate | (accepted & reached)
-        return y_new, eqx.tree_at(lambda s: s.terminate, new_state, terminate), aux
+        new_state = eqx.tree_at(lambda s: s.terminate, new_state, terminate)
+        if self.budget is not None:  # (the loop ends on a result other than successful)
+            spent = (new_state.num_steps >= self.budget) & ~terminate & \
+                (new_state.result == optx.RESULTS.successful)
+            new_state = eqx.tree_at(lambda s: s.result, new_state, optx.RESULTS.where(
+                spent, optx.RESULTS.nonlinear_max_steps_reached, new_state.result))
+        return y_new, new_state, aux
 
 
 def _inner(solver):
