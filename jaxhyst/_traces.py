@@ -335,8 +335,10 @@ def kept_jit(fn):
                 kept = _kept(fn, leaves, treedef, key)
                 with lock:
                     memory[key] = kept
-                    while len(memory) > _KEPT:
-                        del memory[next(iter(memory))]
+                    while len(memory) > _KEPT:  # (its lock goes with it: a later call
+                        old = next(iter(memory))  # of that key makes a new one)
+                        del memory[old]
+                        locks.pop(old, None)
         return (kept or None), leaves
 
     @functools.wraps(fn)
