@@ -208,12 +208,32 @@ def _structure(treedef) -> object:
             _describe(aux), tuple(_structure(c) for c in treedef.children()))
 
 
+#: Structures described (`_structure_of`): (treedef, its text) → description.
+_STRUCTURES: dict = {}
+
+
+def _structure_of(treedef) -> object:
+    """`_structure`, remembered for a structure seen before: equal treedefs whose text
+    (their auxiliary data's reprs: 1 and 1.0 differ there) is equal too."""
+    try:
+        memo = (treedef, str(treedef))
+        known = _STRUCTURES.get(memo)
+    except Exception:  # noqa: BLE001  (auxiliary data that cannot be hashed or compared)
+        return _structure(treedef)
+    if known is None:
+        known = _structure(treedef)
+        if len(_STRUCTURES) >= 256:
+            _STRUCTURES.clear()
+        _STRUCTURES[memo] = known
+    return known
+
+
 def _key(name: str, leaves, treedef) -> str:
     """The key of the call ``name(*args)`` (``leaves``, ``treedef``: the arguments)."""
     parts = [_environment(), _constants(), name,
              tuple((s, repr(getattr(jax.config, s, None))) for s in _SETTINGS),
              tuple((n, repr(state())) for n, state in sorted(SWITCHES.items())),
-             _structure(treedef)]
+             _structure_of(treedef)]
     for x in leaves:
         if eqx.is_array(x):
             aval = jax.typeof(x) if isinstance(x, jax.Array) else None

@@ -4,6 +4,7 @@ that changes a trace; what it cannot describe, or a damaged file, falls back to 
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -95,6 +96,14 @@ def test_the_key_tells_apart_what_changes_a_trace(kept, monkeypatch):
     with plain_vmap():  # (a switch that is not a constant)
         assert key(_problem(), z) != base
     assert key(_problem(), z) == base
+    # static values equal by == but of other types, asked twice (the second time from
+    # the remembered structures): told apart each time
+    keys = [key(_Static(v), z) for v in (1, 1.0, True, 1, 1.0, True)]
+    assert len(set(keys[:3])) == 3 and keys[3:] == keys[:3]
+
+
+class _Static(eqx.Module):
+    value: object = eqx.field(static=True)
 
 
 def _files(tmp_path) -> set:
