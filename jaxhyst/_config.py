@@ -21,6 +21,10 @@ Applied on import (``import jaxhyst`` itself does not import JAX):
   cannot be applied (JAX already computing, or XLA_FLAGS setting other backend options)
   a `PerformanceWarning` says so once, at import.
 
+Warned about at import: ``XLA_FLAGS`` compiling at LLVM ``-O0``
+(``xla_backend_optimization_level=0``), where the pinning-cell forms compute wrong paths
+on the CPU.
+
 Offered, not imposed: JAX's persistent compilation cache (`enable_compilation_cache`),
 which the ``jaxhyst`` command turns on.
 """
@@ -28,6 +32,7 @@ which the ``jaxhyst`` command turns on.
 from __future__ import annotations
 
 import os
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -94,6 +99,17 @@ def _apply_loop_flag() -> None:
     _loop_flag_state = "in effect"
 
 
+def _check_optimization_level() -> None:
+    """Warn once, at import, where XLA_FLAGS compiles at LLVM -O0: compiled so on the CPU,
+    the pinning-cell forms' paths come out wrong (benchmarks/RESULTS.md, issue 45)."""
+    if re.search(r"xla_backend_optimization_level\s*=\s*0(\s|$)",
+                 os.environ.get("XLA_FLAGS", "")):
+        warnings.warn("XLA_FLAGS sets --xla_backend_optimization_level=0: compiled at that "
+                      "level on the CPU, the pinning-cell forms (play, preisach) compute "
+                      "wrong magnetization paths and derivatives (off by up to 40 % of Ms "
+                      "in jaxhyst's tests); remove that flag.", RuntimeWarning, stacklevel=3)
+
+
 def cpu_loop_kernels() -> str:
     """Whether jaxhyst's XLA:CPU loop setting is in effect (see the module docstring)."""
     return _loop_flag_state
@@ -101,6 +117,7 @@ def cpu_loop_kernels() -> str:
 
 _enable_x64()
 _apply_loop_flag()
+_check_optimization_level()
 
 
 def cache_dir() -> Path | None:

@@ -92,6 +92,20 @@ def test_a_warning_says_once_when_the_xla_setting_cannot_be_applied(setup, env):
     assert "slower" in r.stderr and "JAXHYST_XLA_FLAGS=off" in r.stderr
 
 
+@pytest.mark.parametrize("flags, warned", [
+    ("--xla_backend_optimization_level=0", 1), ("--xla_backend_optimization_level=1", 0)])
+def test_a_warning_says_once_that_llvm_o0_computes_the_pinning_cells_wrongly(flags, warned):
+    import os
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", "import jaxhyst"], capture_output=True,
+                       text=True, env={**os.environ, "XLA_FLAGS": flags}, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.count("xla_backend_optimization_level=0") == warned, r.stderr
+    assert ("pinning-cell forms" in r.stderr) == bool(warned), r.stderr
+
+
 def test_compiled_programs_are_released_before_the_mapping_limit(monkeypatch):
     """XLA aborts a process that reaches vm.max_map_count inside a compilation; between
     units of work the compiled programs are dropped where half of it is in use."""
