@@ -106,8 +106,8 @@ def _check_optimization_level() -> None:
                  os.environ.get("XLA_FLAGS", "")):
         warnings.warn("XLA_FLAGS sets --xla_backend_optimization_level=0: compiled at that "
                       "level on the CPU, the pinning-cell forms (play, preisach) compute "
-                      "wrong magnetization paths and derivatives (off by up to 40 % of Ms "
-                      "in jaxhyst's tests); remove that flag.", RuntimeWarning, stacklevel=3)
+                      "wrong magnetization paths and derivatives (off by about 40 % of Ms "
+                      "in a test of jaxhyst's); remove that flag.", RuntimeWarning, stacklevel=3)
 
 
 def cpu_loop_kernels() -> str:
