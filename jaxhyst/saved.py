@@ -5,7 +5,8 @@ ecosystem's form.
 **The file** is one line of JSON — the header: format and version, the form (its class
 name), the substeps, the parameters' units and leaf shape, the actuator's name and
 whether it has turns per metre, the condition law (its features, references, fitted
-range and coefficient names), the versions of jaxhyst, JAX and Equinox that wrote it,
+range and coefficient names; or the fitted records' conditions of a nearest-condition
+model), the versions of jaxhyst, JAX and Equinox that wrote it,
 and whatever the caller adds (``meta``; ``identify --save-model`` adds the data file, its
 SHA-256, the outcome, the rms error, the identifiability report, the fitted loops' range
 of conditions and the error its leave-one-out folds lead one to expect) — followed by the
@@ -37,7 +38,7 @@ from .model.jiles_atherton import (
     PopJA,
     VenkataramanJA,
 )
-from .model.laws import ConditionModel, Conditions
+from .model.laws import ConditionModel, Conditions, NearestCondition
 from .model.losses import LOSS_NAMES, Losses
 from .model.paths import model_parameters, model_values, own_parameters, split_parameters
 from .model.play import AbstractPlayForm, PlayJA, PreisachJA
@@ -70,7 +71,11 @@ class Model(eqx.Module):
     - ``law`` and ``coefficients``: for a fit of a condition law (``identify --vary``,
       `jaxhyst.ConditionProblem`), its `jaxhyst.ConditionModel` (with the references and
       fitted range) and its coefficients ``{name: value}``; ``params`` then hold the
-      fitted records' sets (leaves (L,)) and `at` gives the model at a new condition.
+      fitted records' sets (leaves (L,)) and `at` gives the model at a new condition;
+      or, for the nearest-condition model (`jaxhyst.NearestCondition`, kept by
+      ``identify --joint --leave-one-out`` where it predicts the held-out loops best),
+      that and no coefficients: ``params`` (and the losses' and the form's own
+      parameters) hold one set per fitted loop, and `at` gives the nearest loop's set.
     """
 
     params: Parameters
@@ -85,8 +90,9 @@ class Model(eqx.Module):
            amplitude: float | None = None) -> Model:
         """The model at one condition (frequency in Hz, temperature in °C, amplitude: the
         peak field in A/m, or the peak flux density in T for a B-driven fit), from its
-        condition law: one parameter set (leaves of shape ()) and no law. A condition
-        outside the fitted range warns (`jaxhyst.ConditionWarning`); one the law needs
+        condition law (or the nearest fitted loop's set, for a `NearestCondition`): one
+        parameter set (leaves of shape ()) and no law. A condition outside the fitted
+        range warns (`jaxhyst.ConditionWarning`); one the law needs
         and not given is a one-line ``ValueError``."""
         if self.law is None:
             raise ValueError("this model has no condition law (it was not fitted with "
@@ -96,6 +102,12 @@ class Model(eqx.Module):
         conditions = Conditions(**{k: None if v is None else (float(v),)
                                    for k, v in given.items()})
         self.law.warn_outside(conditions)
+        if isinstance(self.law, NearestCondition):  # (the nearest fitted loop's set)
+            i = int(self.law.nearest(conditions)[0])
+            pick = lambda x: x[i] if np.ndim(x) else x  # noqa: E731
+            return Model(jax.tree.map(pick, self.params), self.actuator,
+                         jax.tree.map(pick, self.variant), self.substeps,
+                         None if self.losses is None else jax.tree.map(pick, self.losses))
         values = self.law.evaluate(self.coefficients, self.law.feature_values(conditions))
         params, losses, form = split_parameters(model_parameters(
             {n: v[0] for n, v in values.items()}, self.variant, self.losses is not None))
@@ -133,6 +145,8 @@ class Model(eqx.Module):
             shown = f"{np.shape(self.params.Ms)[0]} parameter sets (one per loop)"
         losses = "" if self.losses is None else ", rate-dependent"
         law = "" if self.law is None else \
+            f"; the nearest of {self.law.n_records} fitted loops (.at(…))" \
+            if isinstance(self.law, NearestCondition) else \
             f"; condition law {', '.join(self.law.coefficient_names())} (.at(…))"
         return (f"Model({type(self.variant).__name__}: {shown}; {self.actuator.name}; "
                 f"{self.substeps} substeps{losses}{law})")
@@ -183,6 +197,11 @@ def _law_header(model: Model) -> dict | None:
     law = model.law
     if law is None:
         return None
+    if isinstance(law, NearestCondition):
+        r = law.records
+        return {"kind": "nearest", "units": dict(law.units),
+                "records": {n: None if getattr(r, n) is None else list(getattr(r, n))
+                            for n in ("frequency", "temperature", "amplitude")}}
     return {"varying": {n: list(f) for n, f in law.varying}, "degree": law.degree,
             "reference": dict(law.reference),
             "fitted_range": {f: list(r) for f, r in law.fitted_range},
@@ -195,6 +214,8 @@ def _law_of(header: dict):
     law = header.get("law")
     if not law:
         return None, None
+    if law.get("kind") == "nearest":
+        return NearestCondition(Conditions(**law["records"]), law.get("units", {})), None
     model = ConditionModel(law["varying"], law["degree"], law["reference"],
                            {f: tuple(r) for f, r in law["fitted_range"].items()},
                            law.get("units", {}))

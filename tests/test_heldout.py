@@ -50,12 +50,13 @@ def test_forms_are_compared_and_the_best_predictor_is_kept(tmp_path, capsys):
     text = capsys.readouterr().out
     held = json.loads(out.read_text())["leave_one_out"]
     assert rc in (0, 3, 4)
-    assert set(held["forms"]) == {"classic", "play"}
+    assert set(held["forms"]) == {"classic", "play", "nearest"}  # (and the baseline)
     for form, t in held["forms"].items():
         assert [r["loop"] for r in t["rows"]] == [0, 1, 2], form
-        for r in t["rows"]:
+        for r in t["rows"] if form != "nearest" else ():
             assert r["own_rms"] > 0 and r["nearest_rms"] > 0 and r["ratio"] > 0
         assert [r["outside"] for r in t["rows"]] == [True, False, True]
+    assert [r["nearest_loop"] for r in held["forms"]["nearest"]["rows"]] == [1, 0, 1]
     # loops made by the play model: it predicts them better than the JA form, and is kept
     assert held["kept"] == "play"
     assert held["forms"]["play"]["score"] < held["forms"]["classic"]["score"]
@@ -190,7 +191,8 @@ def test_a_candidate_carries_its_own_loss_terms_into_the_folds_and_the_final_fit
           "--max-steps", "3", "--out", str(out)])
     result = json.loads(out.read_text())
     held = result["leave_one_out"]
-    assert list(held["forms"]) == ["classic+relax"] and held["kept"] == "classic+relax"
+    assert list(held["forms"]) == ["classic+relax", "nearest"]  # (the baseline: shown)
+    assert held["kept"] == "classic+relax"  # (one form named: fitted as named)
     assert [r["loop"] for r in held["forms"]["classic+relax"]["rows"]] == [0, 1]
     assert all("relax" in r["extra_bounds"] for r in held["forms"]["classic+relax"]["rows"])
     assert result["problem"]["variant"] == "classic"
@@ -222,7 +224,7 @@ def test_a_candidate_carries_its_own_law_into_the_folds_and_the_final_fit(tmp_pa
     assert len(final) == 1 and len(final[0]) == 3  # (one per fold of the kept form)
     result = json.loads(out.read_text())
     held = result["leave_one_out"]
-    assert list(held["forms"]) == ["play", "play@spread:log_amplitude"]
+    assert list(held["forms"]) == ["play", "play@spread:log_amplitude", "nearest"]
     for form, t in held["forms"].items():
         assert [r["loop"] for r in t["rows"]] == [0, 1, 2] and t["score"] > 0, form
     lawful = held["kept"] == "play@spread:log_amplitude"
@@ -248,7 +250,7 @@ def test_a_loops_own_fit_is_never_worse_than_another_loops_fit_inside_its_box(tm
             "vary": None, "per_loop": []}
     loops = read_loops(spec["data"], spec["columns"])
     own = [heldout._fit(args, {**spec, "loop": lp.index}, None, [lp], "lm") for lp in loops]
-    better = heldout._own_best(args, own, loops, "lm")
+    better, _ = heldout._own_best(args, own, loops, "lm")
     improved = 0
     for i, (result, problem, _) in enumerate(own):
         for j, (result_j, problem_j, spec_j) in enumerate(own):
@@ -340,3 +342,91 @@ def test_loops_at_several_frequencies_get_rate_dependent_candidates_by_default()
                                       "play@spread:log_amplitude"])
     with pytest.raises(CLIError, match="needs --joint"):  # (one loop: no law to fit)
         candidates(args, None)
+
+
+def test_a_comparison_keeps_the_nearest_condition_baseline_where_it_predicts_best():
+    """The baseline is scored from the best form's single fits (its rows: the nearest
+    other loop's fit predicting each held-out loop) and kept where it beats every form —
+    in a comparison; one form named is fitted as named and the baseline only shown."""
+    from jaxhyst.cli.heldout import NEAREST, choose, held_out_text
+
+    def form(score, near):
+        rows = [{"loop": i, "rms": score, "data_scale": 1.0, "outcome": "successful",
+                 "own_rms": 0.001, "ratio": score / 0.001, "nearest_loop": 1 - i,
+                 "nearest_rms": near[i], "nearest_outcome": "successful", "outside": False,
+                 "beyond": {}} for i in range(2)]
+        return {"rows": rows, "score": score, "complete": True,
+                "nearest_score": float(np.sqrt(near[0] * near[1]))}
+
+    conditions = [{"amplitude": 40.0, "frequency": None, "temperature": None},
+                  {"amplitude": 44.0, "frequency": None, "temperature": None}]
+    table = {"classic": form(0.03, (0.004, 0.009)), "play@spread:log_amplitude":
+             form(0.02, (0.002, 0.008))}
+    kept, source = choose(table, conditions, comparison=True)
+    assert kept == NEAREST and source == "play@spread:log_amplitude"
+    base = table[NEAREST]
+    assert base["form"] == "play" and base["score"] == pytest.approx(0.004)
+    assert [r["rms"] for r in base["rows"]] == [0.002, 0.008]
+    assert [r["nearest_loop"] for r in base["rows"]] == [1, 0]
+    text = held_out_text({"forms": table, "kept": kept, "partial": False,
+                          "stopped_short": []})
+    assert "kept: the nearest-condition baseline" in text and "BASELINE BETTER" not in text
+    # a form that predicts better than its neighbours' fits is kept over the baseline
+    table = {"classic": form(0.003, (0.004, 0.009))}
+    assert choose(dict(table), conditions, comparison=True)[0] == "classic"
+    # one form named: fitted as named, the baseline only said to be better
+    table = {"classic": form(0.03, (0.004, 0.009))}
+    kept, _ = choose(table, conditions, comparison=False)
+    assert kept == "classic" and NEAREST in table
+    text = held_out_text({"forms": table, "kept": kept, "partial": False,
+                          "stopped_short": []})
+    assert "BASELINE BETTER" in text and "to let the comparison keep it" in text
+
+
+@pytest.mark.extended  # (two forms' leave-one-out in full, then predictions of new loops)
+def test_loops_no_form_carries_across_keep_the_nearest_loops_fit_and_predict_by_it(
+        tmp_path, capsys):
+    """Two materials, two loops each at neighbouring amplitudes: no shared form predicts
+    a held-out loop as well as the other loop of its pair does, so the comparison keeps
+    the nearest-condition baseline; the result and the saved model then predict a new
+    loop by the fitted loop nearest to it (the same prediction from both), better than
+    the best form's fold predicted that loop."""
+    from jaxhyst.identify.joint import NO_ACTUATOR
+
+    other = TRUTH.replace(Ms=5.0e5, a=60.0, k=80.0, c=0.1)
+    form = jh.PlayJA(spread=0.6, cells=8)
+
+    def write(path, loops):
+        lines = ["loop,H_A_per_m,B_T"]
+        for i, (p, Hm) in enumerate(loops):
+            drive = jh.sinusoidal_field(1.0, Hm, 0.0, samples_per_period=48)
+            sim = jh.simulate_unchecked(p, NO_ACTUATOR, drive, form, substeps=1)
+            H = np.asarray(drive.observed(drive.H))
+            B = MU0 * (H + np.asarray(drive.observed(sim.M)))
+            lines += [f"{i},{h:.10g},{b:.10g}" for h, b in zip(H, B, strict=True)]
+        path.write_text("\n".join(lines) + "\n")
+
+    data, new = tmp_path / "loops.csv", tmp_path / "new.csv"
+    write(data, [(TRUTH, 40.0), (TRUTH, 44.0), (other, 200.0), (other, 220.0)])
+    write(new, [(TRUTH, 42.0), (other, 210.0)])
+    out, saved = tmp_path / "r.json", tmp_path / "m.eqx"
+    main(["identify", str(data), *COMMON, "--variant", "classic,play", "--max-steps",
+          "100", "--starts", "2", "--out", str(out), "--save-model", str(saved)])
+    assert "kept: the nearest-condition baseline" in capsys.readouterr().out
+    result = json.loads(out.read_text())
+    held = result["leave_one_out"]
+    assert held["kept"] == "nearest" and held["forms"]["nearest"]["form"] in ("classic",
+                                                                              "play")
+    assert result["problem"]["predict_by"] == "nearest"
+    assert np.ptp(result["params"]["k"]["value"]) > 0  # (one set per loop)
+    predicted = []
+    for source in (out, saved):
+        assert main(["predict", str(source), str(new), "--json"]) == 0
+        predicted.append(json.loads(capsys.readouterr().out)["loops"])
+    assert [r["rms"] for r in predicted[0]] == pytest.approx([r["rms"] for r in predicted[1]],
+                                                             rel=1e-9)
+    best = min((f for f in held["forms"] if f != "nearest"),
+               key=lambda f: held["forms"][f]["score"])
+    for row, fitted in zip(predicted[0], (1, 3), strict=True):  # (44 and 220 A/m nearest)
+        fold = held["forms"][best]["rows"][fitted]["rms"]
+        assert row["rms"] < fold, (row, fold)

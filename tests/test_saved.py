@@ -148,3 +148,34 @@ def test_a_condition_law_is_saved_and_evaluated_at_a_new_amplitude(tmp_path):
         back.at(frequency=50.0)
     with pytest.raises(ValueError, match="has no condition law"):
         jh.Model(p, jh.ACTUATOR1).at(amplitude=9e3)
+
+
+def test_a_nearest_condition_model_is_saved_and_gives_the_nearest_loops_set(tmp_path):
+    """The nearest-condition model (the baseline a leave-one-out comparison may keep):
+    one set per fitted loop, saved with the loops' conditions, and at a condition it
+    gives the set of the loop nearest to it — by amplitude and frequency, the conditions
+    the loops differ in (the temperature, the same for all, is not asked for)."""
+    x = np.stack([jh.TABLE1_TRUE.replace(k=k).to_array() for k in (1e3, 2e3, 3e3, 4e3)])
+    form = jh.PlayJA(spread=np.array([0.1, 0.2, 0.3, 0.4]), cells=6)
+    nearest = jh.NearestCondition(jh.Conditions(amplitude=(10e3, 20e3, 10e3, 20e3),
+                                                frequency=(50.0, 50.0, 400.0, 400.0),
+                                                temperature=(25.0,) * 4))
+    assert nearest.features == ("log_f", "log_amplitude")
+    model = jh.Model(jh.Parameters.from_array(x), jh.ACTUATOR1, form, law=nearest)
+    assert "the nearest of 4 fitted loops" in repr(model)
+    jh.save_model(tmp_path / "near.eqx", model)
+    back = jh.load_model(tmp_path / "near.eqx")
+    assert back.law == nearest and read_header(tmp_path / "near.eqx")["law"]["kind"] == \
+        "nearest"
+    # ln-distances: 12e3 A/m at 60 Hz is nearest loop 0, 17e3 A/m at 300 Hz loop 3
+    for (A, f), i in (((12e3, 60.0), 0), ((17e3, 60.0), 1), ((11e3, 300.0), 2),
+                      ((17e3, 300.0), 3)):
+        at = back.at(amplitude=A, frequency=f)
+        assert float(at.params.k) == x[i, jh.NAMES.index("k")], (A, f)
+        assert float(at.variant.spread) == pytest.approx(0.1 * (i + 1)) and at.law is None
+    with pytest.warns(jh.ConditionWarning, match="outside the fitted range"):
+        back.at(amplitude=50e3, frequency=50.0)
+    with pytest.raises(ValueError, match="carry none"):
+        back.at(amplitude=12e3)  # (the loops differ in frequency: it is needed)
+    np.testing.assert_array_equal(nearest.nearest(jh.Conditions(
+        amplitude=(10e3, 20e3), frequency=(400.0, 50.0))), [2, 1])

@@ -10,6 +10,11 @@ the fit ends on it; the held-out loop enters only when it is predicted.
 fits the nearest-condition baseline uses) and every fold. A form's score is the
 geometric mean over the folds of the held-out rms error relative to the loop's size; the
 form with the lowest score predicts held-out loops best and is kept for the final fit.
+The **nearest-condition baseline** is scored alike (each held-out loop predicted by the
+own fit of the nearest other loop, `jaxhyst.condition_distance`: the best-scoring form's
+single fits) and, in a comparison of several forms, kept where it scores lowest: the
+final fit is then every loop's own fit (`jaxhyst.NearestCondition`), and a new loop is
+predicted by the nearest fitted loop's.
 """
 
 from __future__ import annotations
@@ -19,16 +24,9 @@ import math
 from .candidates import candidate_spec, split_candidate
 from .spec import note
 
-
-def _distance(a, b) -> float:
-    """How far two loops' conditions lie apart: |ln of the amplitude ratio| plus |ln of
-    the frequency ratio| plus |ΔT|/10 K, over what both loops carry."""
-    d = abs(math.log(a["amplitude"] / b["amplitude"]))
-    if a.get("frequency") and b.get("frequency"):
-        d += abs(math.log(a["frequency"] / b["frequency"]))
-    if a.get("temperature") is not None and b.get("temperature") is not None:
-        d += abs(a["temperature"] - b["temperature"]) / 10.0
-    return d
+#: The name of the nearest-condition baseline in a comparison's table (and as the kept
+#: candidate: each loop's own fit, a loop predicted by the nearest fitted loop's).
+NEAREST = "nearest"
 
 
 def _beyond(conditions, i) -> dict:
@@ -102,10 +100,11 @@ def _own_best(args, own, loops, method):
     better than the loop's own (its search stopped in a higher valley), the loop is
     fitted again from that one — with the same number of starts, the rest random, so
     that nothing new compiles — and the better fit kept. ``own``: [(result, problem,
-    spec)] per loop, in the order of ``loops``; returns it, improved."""
+    spec)] per loop, in the order of ``loops``; returns it, improved, and for each loop
+    the index of the loop whose fit its kept fit started from (None: its own)."""
     import numpy as np
 
-    out = list(own)
+    out, sources = list(own), [None] * len(own)
     for i, (result, _, _) in enumerate(own):
         tries = [(_predict(spec_j, problem_j, result_j.params, loops[i])["rms"], j)
                  for j, (result_j, problem_j, spec_j) in enumerate(own) if j != i]
@@ -113,7 +112,8 @@ def _own_best(args, own, loops, method):
         if rms < result.rms_error * (1.0 - 1e-3):
             out[i] = _again(args, out[i], own[j][0].params, method,
                             f"from loop {loops[j].index}'s fit", rms, loops[i].index)
-    return out
+            sources[i] = j if out[i] is not own[i] else None
+    return out, sources
 
 
 def _again(args, fit, params, method, source: str, rms: float, index):
@@ -131,6 +131,15 @@ def _again(args, fit, params, method, source: str, rms: float, index):
     params = jax.tree.map(lambda x: x[0] if np.ndim(x) else x, params)  # (shared values)
     again = refit_from(args, problem, params, method, quiet=True)
     return (again, problem, spec) if again.rms_error < result.rms_error else fit
+
+
+def _data_scale(spec, loop) -> float:
+    """max |data| of the signal a fit of ``loop`` fits (its size, for relative errors)."""
+    import numpy as np
+
+    from .spec import loop_signal
+
+    return float(np.max(np.abs(loop.signals[loop_signal(spec, loop, spec.get("output"))])))
 
 
 def _predict(spec, problem, params, loop):
@@ -159,9 +168,11 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
     (``_curves``, ``_folds``: the kept form's predictions and its folds' free values,
     [(names, values)])."""
     from jaxhyst._interrupt import stop_requested
+    from jaxhyst.identify import condition_distance
 
     conditions = _conditions(spec, loops)
     table, partial, short, curves, singles, folds = {}, False, [], {}, {}, {}
+    near_curves, owns = {}, {}
     pad_to = comparison_shape(spec, loops)
     for form in forms:
         spec_f = {**spec, **candidate_spec(args, form), "pad_to": pad_to}
@@ -171,8 +182,10 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
         # alone fitted already: the same single-loop problems)
         name, losses, _ = split_candidate(form)
         same = (name, tuple(losses))  # (the form and its loss coefficients, not its law)
-        alone, own = singles.get(same, ([], []))
-        own, reused = list(own), len(own)
+        alone, own, seen = singles.get(same, ([], [], []))
+        # (seen[j]: the loops whose data shaped own[j], its starts included — a loop's
+        # fit predicts a held-out loop for the baseline only where it never saw it)
+        own, reused, seen = list(own), len(own), [set(x) for x in seen]
         for lp in loops[len(own):]:
             if stop_requested():
                 partial = True
@@ -183,11 +196,18 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             note("leave-one-out", f"{form}: loop {lp.index} alone …")
             result, problem, fitted = _fit(args, single, given, [lp], method)
             own.append((result, problem, fitted))
+            seen.append({len(own) - 1})
         # (each loop's fit from its own data alone: the folds' starts, which must not
         # see the loop a fold holds out — a re-fit from a neighbour's fit would)
         alone = alone or [r for r, _, _ in own]
         if not partial and not stop_requested():
-            own = _own_best(args, own, loops, method)
+            own, sources = _own_best(args, own, loops, method)
+            seen = [s | seen[j] if j is not None else s for s, j in zip(seen, sources,
+                                                                       strict=True)]
+        # (the folds' seeds: the training loops' fits alone, the closest fits first —
+        # a batch takes as many as its starts allow)
+        scale = [_data_scale(spec_f, lp) for lp in loops]
+        order = sorted(range(len(alone)), key=lambda j: alone[j].rms_error / scale[j])
         rows = []
         for i, held in enumerate(loops):
             if partial or stop_requested():
@@ -195,7 +215,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                 break
             rest = [lp for j, lp in enumerate(loops) if j != i]
             # (the training loops' fits alone among the starts)
-            seeds = [alone[j].params for j in range(len(alone)) if j != i and
+            seeds = [alone[j].params for j in order if j != i and
                      not isinstance(alone[j].params, dict)] if shared else []
             note("leave-one-out", f"{form}: fitting without loop {held.index} …")
             result, problem, fitted = _fit(args, spec_f, given, rest, method, seeds)
@@ -217,18 +237,24 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                     row["rms"] < own[i][0].rms_error * (1.0 - 1e-3):
                 # (the fold, which never saw the loop, predicts it better than its own fit:
                 # the own fit stopped in a higher valley)
-                own[i] = _again(args, own[i], result.params, method, "from the fold's fit",
-                                row["rms"], held.index)
+                again = _again(args, own[i], result.params, method, "from the fold's fit",
+                               row["rms"], held.index)
+                if again is not own[i]:  # (the fold saw every loop but this one)
+                    own[i], seen[i] = again, set(range(len(loops)))
             if i < len(own):
                 row["own_rms"] = own[i][0].rms_error
                 row["ratio"] = row["rms"] / max(row["own_rms"], 1e-300)
                 others = [j for j in range(len(own)) if j != i]
                 if others:
-                    j = min(others, key=lambda j: _distance(conditions[i], conditions[j]))
+                    j = min(others, key=lambda j: condition_distance(conditions[i],
+                                                                     conditions[j]))
                     result_j, problem_j, spec_j = own[j]
+                    if i in seen[j]:  # (its best fit started from what loop i shaped)
+                        result_j = alone[j]
                     near = _predict(spec_j, problem_j, result_j.params, held)
-                    near.pop("_curve")
+                    near_curves.setdefault(form, []).append((held, *near.pop("_curve")))
                     row["nearest_loop"], row["nearest_rms"] = loops[j].index, near["rms"]
+                    row["nearest_outcome"] = result_j.result
             note("leave-one-out", f"{form}: loop {held.index} predicted, rms "
                  f"{row['rms']:.4g} ({row['outcome']})")
             rows.append(row)
@@ -242,14 +268,86 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                       if done and len(near) == len(rows) else None)
         table[form] = {"rows": rows, "score": score, "complete": done,
                        "nearest_score": near_score}
+        owns[form] = own
         if done:
-            singles.setdefault(same, (alone, list(own)))
+            singles.setdefault(same, (alone, list(own), seen))
         if partial:
             break
+    kept, source = choose(table, conditions, comparison=len(forms) > 1)
+    out = {"forms": table, "kept": kept, "partial": partial, "stopped_short": short,
+           "_curves": curves.get(kept, []), "_folds": folds.get(kept, [])}
+    if kept == NEAREST:  # (its curves and fits: the source form's single fits)
+        out["_curves"], out["_own"] = near_curves[source], owns[source]
+    return out
+
+
+def choose(table: dict, conditions, comparison: bool) -> tuple[str | None, str | None]:
+    """(the kept candidate, the candidate whose single fits the baseline uses) of a
+    comparison's ``table`` ({candidate: {rows, score, complete, nearest_score}}), with
+    the nearest-condition baseline's entry added to it as `NEAREST` (`_baseline`): the
+    lowest score wins; the baseline is among the candidates only in a ``comparison``
+    (several forms) — one form named is fitted as named, the baseline shown beside it."""
+    base, source = _baseline(table, conditions)
     scored = {f: t["score"] for f, t in table.items() if t["score"] is not None}
-    kept = min(scored, key=scored.get) if scored else None
-    return {"forms": table, "kept": kept, "partial": partial, "stopped_short": short,
-            "_curves": curves.get(kept, []), "_folds": folds.get(kept, [])}
+    if base is not None:
+        table[NEAREST] = base
+        if comparison:
+            scored[NEAREST] = base["score"]
+    return (min(scored, key=scored.get) if scored else None), source
+
+
+def _baseline(table, conditions) -> tuple[dict | None, str | None]:
+    """(the nearest-condition baseline's entry of the comparison's table, the candidate
+    whose single fits it uses): the complete candidate whose loops' own fits predict
+    the held-out loops best as the nearest other loop's (the entry's ``form``: that
+    candidate's form and loss coefficients, without a law — the single fits carry
+    none), one row per held-out loop, the loops' ``conditions``; (None, None) where no
+    candidate's folds are complete."""
+    scored = [(t["nearest_score"], f) for f, t in table.items()
+              if t["complete"] and t.get("nearest_score") is not None]
+    if not scored:
+        return None, None
+    score, form = min(scored)
+    rows = [{"loop": r["loop"], "rms": r["nearest_rms"], "data_scale": r["data_scale"],
+             "nearest_loop": r["nearest_loop"], "outcome": r["nearest_outcome"],
+             "outside": r["outside"], "beyond": r["beyond"]}
+            for r in table[form]["rows"]]
+    return {"rows": rows, "score": score, "complete": True, "nearest_score": None,
+            "form": form.partition("@")[0], "conditions": conditions}, form
+
+
+def nearest_fit(args, spec, given, loops, held: dict, own):
+    """The final fit where the comparison kept the nearest-condition baseline: every loop
+    its own parameter set (a joint problem with each free parameter per loop, ``spec``'s
+    ``predict_by`` "nearest" and the loops' conditions), in a box that holds the derived
+    one and each loop's own fit's (widened where that fit ended on a bound), polished by
+    one LM solve from the loops' own fits ``own`` ([(result, problem, spec)]): (spec,
+    problem, result)."""
+    import jax
+    import numpy as np
+
+    from jaxhyst.io import bounds_to_json
+
+    from .fitting import refine_from
+    from .problems import build_problem, resolve_bounds
+
+    base = held["forms"][NEAREST]
+    spec = {**spec, **candidate_spec(args, base["form"]), "vary": None,
+            "predict_by": "nearest", "nearest_conditions": base["conditions"]}
+    bounds, extra, _ = resolve_bounds(spec, given, loops)
+    box = bounds_to_json(bounds)
+    extra = {n: list(v) for n, v in extra.items()}
+    for _, _, fitted in own:
+        for mine, theirs in ((box, fitted["bounds"]), (extra, fitted["extra_bounds"])):
+            for n, (lo, hi) in theirs.items():
+                a, b = mine.get(n, (lo, hi))
+                mine[n] = [min(a, lo), max(b, hi)]
+    spec["bounds"], spec["extra_bounds"] = box, extra
+    problem = build_problem(spec, loops)
+    start = jax.tree.map(lambda *x: np.asarray([np.ravel(v)[0] for v in x]),
+                         *[result.params for result, _, _ in own])
+    result = refine_from(args, problem, start, what="from each loop's own fit")
+    return spec, problem, result
 
 
 def held_out_figure(curves, kept: str, spec, actuator, output: str, path: str) -> None:
@@ -279,14 +377,23 @@ def held_out_text(held: dict) -> str:
             ratio = f", {r['ratio']:.3g}× own" if "ratio" in r else ""
             ratio += " (extrapolated)" if r.get("outside") else ""
             near = (f", nearest (loop {r['nearest_loop']}) {r['nearest_rms']:.4g}"
-                    if "nearest_rms" in r else "")
+                    if "nearest_rms" in r else
+                    f" (loop {r['nearest_loop']}'s fit)" if form == NEAREST else "")
             flag = "" if r["outcome"] == "successful" else f" [{r['outcome']}]"
-            cells.append(f"loop {r['loop']}: {r['rms']:.4g}{ratio}{near}{flag}")
+            cells.append(f"loop {r['loop']}: {r['rms']:.4g}{near}{ratio}{flag}")
         score = (f"score {t['score']:.4g}" if t["score"] is not None else
                  "incomplete")
-        lines.append(f"    {form:<10} {score} — " + "; ".join(cells))
+        label = form if form != NEAREST else f"{NEAREST} ({t['form']} alone)"
+        lines.append(f"    {label:<10} {score} — " + "; ".join(cells))
     kept = held["kept"]
-    if kept and len(held["forms"]) > 1:
+    compared = [f for f in held["forms"] if f != NEAREST]
+    if kept == NEAREST:
+        lines.append(f"    kept: the nearest-condition baseline — each loop's own "
+                     f"{held['forms'][NEAREST]['form']} fit, a new loop predicted by the "
+                     "nearest fitted loop's (the lowest geometric-mean held-out error "
+                     "relative to each loop's size): no form here carries across these "
+                     "conditions better")
+    elif kept and len(compared) > 1:
         lines.append(f"    kept: {kept} (the lowest geometric-mean held-out error "
                      "relative to each loop's size)")
     near = held["forms"].get(kept, {}).get("nearest_score") if kept else None
@@ -294,7 +401,9 @@ def held_out_text(held: dict) -> str:
         lines.append(f"    BASELINE BETTER: the nearest measured loop's own fit predicts the "
                      f"held-out loops better (score {near:.4g} against {kept}'s "
                      f"{held['forms'][kept]['score']:.4g}): no form here carries across "
-                     "these conditions")
+                     "these conditions" + (" (name several forms, or none, to let the "
+                                           "comparison keep it)" if len(compared) == 1
+                                           else ""))
     for s in held["stopped_short"]:
         lines.append(f"    STOPPED SHORT: {s}")
     if held["partial"]:

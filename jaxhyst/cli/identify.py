@@ -21,7 +21,7 @@ from .candidates import (
 )
 from .fitting import decimated_first, fit_by_options, widen_derived_box
 from .flux_fit import check_flux_options, flux_figure
-from .heldout import held_out_figure, held_out_text, leave_one_out
+from .heldout import NEAREST, held_out_figure, held_out_text, leave_one_out, nearest_fit
 from .models import file_sha256
 from .options import (
     COUNT,
@@ -33,7 +33,7 @@ from .options import (
     VARIANTS,
     Parser,
 )
-from .predictions import expected_error, fitted_range, joint_view, records_of
+from .predictions import expected_error, fitted_range, joint_view, model_to_save, records_of
 from .problems import DEFAULT_CELLS, build_problem, resolve_bounds
 from .spec import (
     CLIError,
@@ -85,7 +85,10 @@ def add_parser(sub) -> None:
                         help="with --vary: 1 (linear in each feature) or 2 (quadratic)")
     parser.add_argument("--leave-one-out", action="store_true",
                         help="with --joint: also fit every loop but one and predict the one "
-                        "left out, for each loop; reports each held-out error")
+                        "left out, for each loop; reports each held-out error beside the "
+                        "nearest measured loop's own fit, and with several forms keeps the "
+                        "one that predicts best (that baseline too: then each loop's own "
+                        "fit, a new loop predicted by the nearest's)")
     parser.add_argument("--variant", help="model form: " + ", ".join(VARIANTS) + " (energy: "
                         "the paper's Jiles–Atherton form, the default; play and preisach: "
                         "forms of pinning cells with return-point memory, their own "
@@ -262,14 +265,17 @@ def run(args) -> int:
     rate = rate_note(spec, loops, forms) if args.progress and spec.get("joint") else None
     if rate:
         note("identify", rate)
-    held = curves = None
+    held = curves = result = None
     folds = ()
     if args.leave_one_out:  # (first: with several forms, it chooses the one to fit)
         held = leave_one_out(args, spec, given, loops, method, forms)
-        curves, folds = held.pop("_curves"), held.pop("_folds")
+        curves, folds, own = held.pop("_curves"), held.pop("_folds"), held.pop("_own", ())
         if held["partial"]:
             return _interrupted(args, spec, held)
-        if held["kept"] != forms[0]:
+        if held["kept"] == NEAREST:  # (each loop's own fit: polished together, no search)
+            spec, problem, result = nearest_fit(args, spec, given, loops, held, own)
+            where = None
+        elif held["kept"] != forms[0]:
             spec.update(candidate_spec(args, held["kept"]))
             bounds, extra, where = resolve_bounds(spec, given, loops)
             spec["bounds"] = bounds_to_json(bounds)
@@ -277,12 +283,12 @@ def run(args) -> int:
             problem = build_problem(spec, loops)
     if where and args.progress:  # (after every check of the input: errors stay one line)
         note("identify", where)
-    thinned = decimated_first(args, spec, loops, problem, method)
+    thinned = None if result else decimated_first(args, spec, loops, problem, method)
     # (the kept form's folds, each fitted to all loops but one, among the final fit's
     # starts: a cost with local minima is searched from near its optimum too)
     seeds = [problem.space.params_from_free(x) for names, x in folds
              if names == tuple(problem.space.names)]
-    result = thinned or fit_by_options(args, problem, method, start, seeds=seeds)
+    result = result or thinned or fit_by_options(args, problem, method, start, seeds=seeds)
     if where and where.startswith("bounds derived"):  # (after a thinned fit: its polish's
         result, problem = widen_derived_box(  # single LM solve, not a batch on all samples)
             args, spec, given, loops, problem, result, method, batch=thinned is None)
@@ -309,15 +315,7 @@ def run(args) -> int:
     if args.out:
         write_json(args.out, d)
     if args.save_model:
-        model = problem.model(result.params)
-        records = records_of(problem)
-        if all(o in MAGNETIC_OUTPUT_NAMES
-               for o in getattr(records, "outputs", None) or (records.output,)):
-            import equinox as eqx
-
-            from jaxhyst.identify.joint import NO_ACTUATOR  # (a material: no actuator)
-
-            model = eqx.tree_at(lambda m: m.actuator, model, NO_ACTUATOR)
+        model, records = model_to_save(spec, problem, result), records_of(problem)
         jh.save_model(args.save_model, model, data=spec["data"],
                       data_sha256=file_sha256(spec["data"]), outcome=result.result,
                       rms_error=result.rms_error, output=result.output,

@@ -94,7 +94,8 @@ def model_at(args, model, path: str, *, frequency=None, temperature=None, amplit
     """``model`` ready for one drive: a condition law evaluated at the conditions the
     options give (frequency in Hz, temperature in °C, ``amplitude`` in ``amplitude_unit``
     from ``amplitude_option``), each condition it varies with required and the others
-    refused; a model of one parameter set per loop (a joint fit without a law) refused.
+    refused; a model of one parameter set per loop (a joint fit without a law) refused,
+    unless it picks the nearest loop's set (`jaxhyst.NearestCondition`).
     Extrapolations are warned on stderr."""
     import warnings
 
@@ -123,8 +124,10 @@ def model_at(args, model, path: str, *, frequency=None, temperature=None, amplit
                            f"{'flux density' if unit == 'T' else 'field'} ({unit}), this "
                            f"run's {amplitude_option} is in {amplitude_unit}: drive it {by}.")
         if given[name] is None:
-            raise CLIError(f"--model {path}: its condition law varies with the {name}; give "
-                           f"{option}.")
+            what = (f"picks the nearest of its {model.law.n_records} fitted loops by the "
+                    f"{name}" if isinstance(model.law, jh.NearestCondition) else
+                    f"its condition law varies with the {name}")
+            raise CLIError(f"--model {path}: {what}; give {option}.")
         needed[name] = given[name]
     if temperature is not None and "temperature" not in needed:
         raise CLIError(f"--temperature: the law of {path} does not vary with the "

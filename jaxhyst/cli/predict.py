@@ -57,6 +57,7 @@ def run(args) -> int:
         expect,
         expected_error,
         fitted_range,
+        nearest_of,
         outside,
         predict_loops,
         prediction_line,
@@ -80,7 +81,9 @@ def run(args) -> int:
     source = args.data or spec["data"]
     loops = select_loops(read_loops(source, spec.get("columns")), args.loop, source)
     overrides = {"frequency": args.frequency, "temperature": args.temperature}
-    varies = fitted.form.features if isinstance(fitted, jh.ConditionProblem) else ()
+    nearest = nearest_of(spec)  # (a fit that kept the nearest-condition baseline)
+    varies = fitted.form.features if isinstance(fitted, jh.ConditionProblem) else \
+        nearest.features if nearest is not None else ()
     for name, feature in (("frequency", "log_f"), ("temperature", "T"),
                           ("amplitude", "log_amplitude")):
         if vars(args)[name] is not None and feature not in varies:

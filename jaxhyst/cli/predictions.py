@@ -39,7 +39,9 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     condition model is evaluated at each loop's conditions (``conditions``:
     {"frequency": …, "temperature": …} overriding the file's); shared joint parameters
     are used as they are; a single-loop fit's parameters likewise. The model is the
-    fit's: its form, loss coefficients and the form's own parameters. ``source``: the
+    fit's: its form, loss coefficients and the form's own parameters; a fit that kept the
+    nearest-condition baseline (``spec["predict_by"]``) predicts a loop by the set of the
+    fitted loop nearest to its conditions (`nearest_of`). ``source``: the
     file the loops come from (for the messages; the fitted data file by default). Each
     loop is simulated padded to the longest of ``loops`` — or to ``spec``'s common shape
     (``pad_to``: a leave-one-out) — so that loops of any length share one program."""
@@ -58,6 +60,14 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     name = next((q for q, k in SIGNAL_OUTPUTS.items() if k == kind.name), None)
     drives = [loop_drive(spec, lp, name or "B", actuator, source) for lp in loops]
     pad_to = spec.get("pad_to") or (common_shape(drives) if len(drives) > 1 else None)
+    nearest = nearest_of(spec)
+    if nearest is not None:
+        try:  # (a condition the fitted loops differ in, which the loops lack: one line)
+            nearest.nearest(loop_conditions({**spec, "data": source or spec["data"]}, loops,
+                                            actuator, conditions))
+        except ValueError as err:
+            raise CLIError(f"{source or spec['data']}: {err} (a column, or --frequency and "
+                           "--temperature)") from None
     out = []
     for lp, drive in zip(loops, drives, strict=True):
         if isinstance(fitted, jh.ConditionProblem):
@@ -69,6 +79,10 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
                 raise CLIError(f"{source or spec['data']}: {err} (a column, or --frequency "
                                "and --temperature)") from None
             tree = jax.tree.map(lambda x: np.asarray(x)[0], tree)
+        elif nearest is not None:  # (the nearest fitted loop's set)
+            i = int(nearest.nearest(loop_conditions({**spec, "data": source or spec["data"]},
+                                                    [lp], actuator, conditions))[0])
+            tree = jax.tree.map(lambda x, i=i: np.asarray(x)[i], params)
         elif np.ndim(split_parameters(params)[0].Ms) == 1:
             per_loop = [np.asarray(x) for x in jax.tree.leaves(params)]
             if any(np.ptp(x) > 0 for x in per_loop):
@@ -85,6 +99,44 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
         data = lp.signals.get(name)
         out.append((predicted, None if data is None else np.asarray(data)))
     return out
+
+
+def model_to_save(spec, problem, result):
+    """The `jaxhyst.Model` of a fit (``identify --save-model``): a material's (magnetic
+    outputs only) without an actuator; the nearest-condition model with its loops'
+    conditions (`nearest_of`)."""
+    import equinox as eqx
+
+    import jaxhyst as jh
+    from jaxhyst.identify.joint import NO_ACTUATOR
+    from jaxhyst.names import MAGNETIC_OUTPUT_NAMES
+
+    model = problem.model(result.params)
+    records = records_of(problem)
+    if all(o in MAGNETIC_OUTPUT_NAMES
+           for o in getattr(records, "outputs", None) or (records.output,)):
+        model = eqx.tree_at(lambda m: m.actuator, model, NO_ACTUATOR)  # (a material)
+    nearest = nearest_of(spec)
+    if nearest is not None:
+        model = jh.Model(model.params, model.actuator, model.variant, model.substeps,
+                         model.losses, nearest)
+    return model
+
+
+def nearest_of(spec):
+    """The `jaxhyst.NearestCondition` of a fit that kept the nearest-condition baseline
+    (``identify --joint --leave-one-out``: ``spec["predict_by"]`` "nearest", the fitted
+    loops' conditions in ``spec["nearest_conditions"]``), else None."""
+    import jaxhyst as jh
+
+    if spec.get("predict_by") != "nearest":
+        return None
+    rows = spec["nearest_conditions"]
+    columns = {name: [r.get(name) for r in rows] for name in ("frequency", "temperature",
+                                                              "amplitude")}
+    return jh.NearestCondition(jh.Conditions(**{
+        name: None if any(v is None for v in values) else values
+        for name, values in columns.items()}), {"log_amplitude": "A/m"})
 
 
 def beyond(value: float, lo: float, hi: float, name: str) -> float:

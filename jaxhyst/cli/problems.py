@@ -306,6 +306,8 @@ def build_problem(spec: dict, loops=None):
             fixed = fix_structural(bounds, fixed)
         vary = parse_vary(spec.get("vary"))
         per_loop = spec.get("per_loop") or ()
+        if spec.get("predict_by") == "nearest":  # (each loop its own set: the nearest-
+            per_loop = list(model_space(spec, bounds, fixed).names)  # condition model)
         if vary and per_loop:
             raise CLIError("--vary and --per-loop both say how parameters differ between "
                            "loops; use one of them.")

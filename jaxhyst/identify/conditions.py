@@ -30,6 +30,8 @@ from ..model.laws import (  # (the law sits below the problems and Model; re-exp
     ConditionModel,
     Conditions,
     ConditionWarning,
+    NearestCondition,
+    condition_distance,
 )
 from ..model.losses import LOSS_LIMITS, LOSS_NAMES
 from ..model.paths import OWN_NAMES, model_parameters, own_parameters
@@ -39,7 +41,8 @@ from .problem import AbstractProblem, ResidualGroup
 from .space import ParameterSpace
 
 __all__ = ["ADDITIVE", "FEATURES", "SLOPE_BOX", "VARYING_NAMES", "ConditionModel",
-           "ConditionProblem", "ConditionWarning", "Conditions", "condition_space",
+           "ConditionProblem", "ConditionWarning", "Conditions", "NearestCondition",
+           "condition_distance", "condition_space",
            "per_record_space", "split_records"]
 
 

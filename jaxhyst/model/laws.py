@@ -235,23 +235,7 @@ class ConditionModel:
     def warn_outside(self, conditions: Conditions) -> None:
         """A `ConditionWarning` for each condition outside the fitted range, saying how far
         (a ``ValueError`` naming a condition the model needs and the records lack)."""
-        for f in self.features:
-            raw, (lo, hi) = conditions.raw(f), dict(self.fitted_range)[f]
-            if raw is None:
-                what, unit = FEATURES[f]
-                raise ValueError(f"the fitted model varies with the {what}, and the records "
-                                 f"to predict carry none ({unit}); give it.")
-            for v in raw:
-                if lo <= v <= hi:
-                    continue
-                what, unit = FEATURES[f]
-                if f == "T":
-                    far = f"{min(abs(v - lo), abs(v - hi)):.3g} K"
-                else:
-                    far = f"a factor {max(v / hi, lo / v):.3g}"
-                warnings.warn(f"a prediction at {what} {v:g} {self._unit(f)} lies outside the "
-                              f"fitted range {lo:g}–{hi:g} {self._unit(f)} ({far} beyond "
-                              "it): an extrapolation.", ConditionWarning, stacklevel=3)
+        _warn_outside(self.features, dict(self.fitted_range), self._unit, conditions)
 
     def _unit(self, feature: str) -> str:
         """The unit of a feature's condition ("A/m or T" for an amplitude: the one of the
@@ -281,3 +265,114 @@ class ConditionModel:
                 out[name] = ref * jnp.exp(exponent)
         return out
 
+
+
+def _warn_outside(features, fitted_range: dict, unit, conditions: Conditions) -> None:
+    """A `ConditionWarning` for each of ``conditions`` outside ``fitted_range`` ({feature:
+    (lowest, highest)}) in one of ``features``, saying how far (``unit(feature)``: the
+    unit shown); a ``ValueError`` where the conditions lack one of the features."""
+    for f in features:
+        raw, (lo, hi) = conditions.raw(f), fitted_range[f]
+        if raw is None:
+            what, u = FEATURES[f]
+            raise ValueError(f"the fitted model varies with the {what}, and the records "
+                             f"to predict carry none ({u}); give it.")
+        for v in raw:
+            if lo <= v <= hi:
+                continue
+            what = FEATURES[f][0]
+            far = (f"{min(abs(v - lo), abs(v - hi)):.3g} K" if f == "T" else
+                   f"a factor {max(v / hi, lo / v):.3g}")
+            warnings.warn(f"a prediction at {what} {v:g} {unit(f)} lies outside the fitted "
+                          f"range {lo:g}–{hi:g} {unit(f)} ({far} beyond it): an "
+                          "extrapolation.", ConditionWarning, stacklevel=4)
+
+
+def _feature(f: str, raw: np.ndarray) -> np.ndarray:
+    """A condition's raw values on the scale of its feature (ln for the frequency and the
+    amplitude, tens of kelvin for the temperature), without a reference."""
+    return raw / 10.0 if f == "T" else np.log(raw)
+
+
+def condition_distance(a: Mapping, b: Mapping) -> float:
+    """How far two records' conditions lie apart, over the conditions both carry
+    (``{"amplitude": …, "frequency": …, "temperature": …}``, a value or None each):
+    |ln of the amplitude ratio| + |ln of the frequency ratio| + |ΔT|/10 K — the sum of
+    the differences of the features a condition law reads."""
+    d = 0.0
+    for f in FEATURES:
+        what = FEATURES[f][0]
+        x, y = a.get(what), b.get(what)
+        if x is not None and y is not None:
+            d += abs(float(_feature(f, np.float64(x)) - _feature(f, np.float64(y))))
+    return d
+
+
+@dataclass(frozen=True)
+class NearestCondition:
+    """The nearest-condition model: no law between the fitted records, one parameter set
+    per record, and a condition predicted by the set of the record whose condition lies
+    nearest to it (`condition_distance`). The baseline a skeptic uses for a law; kept by
+    ``identify --joint --leave-one-out`` where its folds predict the held-out loops best.
+
+    ``records``: the fitted records' `Conditions`; ``units``: ``{"log_amplitude": "A/m"
+    or "T"}``. Its ``features`` are the conditions that differ between the records (by
+    more than `SAME_CONDITION` on a feature's scale); a prediction needs those.
+    Immutable and hashable (static structure of a saved `jaxhyst.Model`)."""
+
+    records: Conditions
+    units: tuple = ()
+
+    def __init__(self, records: Conditions, units: Mapping | tuple = ()):
+        if not isinstance(records, Conditions) or records.n_records < 1:
+            raise ValueError("NearestCondition needs the fitted records' Conditions (one "
+                             "value per record of at least one condition).")
+        object.__setattr__(self, "records", records)
+        object.__setattr__(self, "units", tuple(dict(units).items()))
+
+    @property
+    def n_records(self) -> int:
+        return self.records.n_records
+
+    @property
+    def features(self) -> tuple[str, ...]:
+        """The features whose conditions differ between the records, in `FEATURES`'s
+        order."""
+        out = []
+        for f in FEATURES:
+            raw = self.records.raw(f)
+            if raw is not None and np.ptp(_feature(f, raw)) > SAME_CONDITION:
+                out.append(f)
+        return tuple(out)
+
+    @property
+    def fitted_range(self) -> tuple:
+        """``((feature, (lowest, highest)), …)`` of the records' conditions."""
+        return tuple((f, (float(np.min(self.records.raw(f))),
+                          float(np.max(self.records.raw(f))))) for f in self.features)
+
+    def nearest(self, conditions: Conditions) -> np.ndarray:
+        """The index of the nearest fitted record for each of ``conditions``' records,
+        shape (L,) (a ``ValueError`` where they lack a condition the records differ in;
+        the first of equally near records)."""
+        cols = []
+        for f in self.features:
+            raw = conditions.raw(f)
+            if raw is None:
+                what, unit = FEATURES[f]
+                raise ValueError(f"the model picks the nearest of its {self.n_records} "
+                                 f"fitted records by {what} too, and the records to predict "
+                                 f"carry none ({unit}); give it.")
+            cols.append(np.abs(_feature(f, raw)[:, None] -
+                               _feature(f, self.records.raw(f))[None, :]))
+        if not cols:
+            return np.zeros(max(conditions.n_records, 1), dtype=int)
+        return np.argmin(np.sum(cols, axis=0), axis=1)
+
+    def warn_outside(self, conditions: Conditions) -> None:
+        """As `ConditionModel.warn_outside`: a `ConditionWarning` per condition beyond the
+        fitted records' range (a ``ValueError`` for one the records differ in and the
+        conditions lack)."""
+        _warn_outside(self.features, dict(self.fitted_range),
+                      lambda f: dict(self.units).get(f, "A/m" if f == "log_amplitude" else
+                                                     FEATURES[f][1]), conditions)
