@@ -159,19 +159,17 @@ def table(name, result, seconds, status) -> list[str]:
     lines = [f"### {name}: kept `{held['kept']}` (exit {status}, {seconds:.0f} s)", "",
              "| form | " + " | ".join(f"loop {i}" for i in loops) + " | score |",
              "|---|" + "---|" * (len(loops) + 1)]
-    nearest = {}
     for form, t in held["forms"].items():
         cells = []
         for r in t["rows"]:
             where = "extrap." if r.get("outside") else "interp."
             flag = "" if r["outcome"] == "successful" else f" ({r['outcome']})"
-            cells.append(f"{r['rms']:.3g} = {r.get('ratio', float('nan')):.2g}× own "
-                         f"({where}){flag}")
-            nearest.setdefault(r["loop"], []).append(r.get("nearest_rms", float("nan")))
+            how = (f"loop {r['nearest_loop']}'s fit" if form == "nearest" else
+                   f"{r.get('ratio', float('nan')):.2g}× own")
+            cells.append(f"{r['rms']:.3g} = {how} ({where}){flag}")
         score = "—" if t["score"] is None else f"{t['score']:.3g}"
-        lines.append(f"| {form} | " + " | ".join(cells) + f" | {score} |")
-    lines.append("| nearest loop's own fit (best form) | " + " | ".join(
-        f"{min(nearest[i]):.3g}" for i in loops) + " | |")
+        name = f"nearest loop's own fit ({t['form']})" if form == "nearest" else form
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {score} |")
     for s in held["stopped_short"]:
         lines.append(f"\nstopped short: {s}")
     return lines + [""]
@@ -189,8 +187,10 @@ def main():
     lines = [f"# bench_heldout_forms — {time.strftime('%Y-%m-%d')}, {os.uname().machine}, "
              f"{os.cpu_count()} cores", "",
              "rms error of B (T) of each held-out loop predicted from a fit of the others; "
-             "× own: over the loop's own fit (same form); the last row: the nearest "
-             "measured loop's own fit predicting it.", ""]
+             "× own: over the loop's own fit (same form); row `nearest`: the baseline, "
+             "each loop predicted by the nearest other loop's own fit (of the form whose "
+             "fits do that best; never a fit the held-out loop shaped), a candidate too.",
+             ""]
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.files.split(","):
             if name == "mnzn":

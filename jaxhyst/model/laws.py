@@ -24,6 +24,11 @@ are fitted by `jaxhyst.identify.conditions.ConditionProblem` and carried by a sa
 **The amplitude form** (``{"k": ("log_amplitude",), …}``: pinning and reversibility
 set by the loop's peak field, since one parameter set does not carry over between loops
 of different amplitude) and how it is judged: `jaxhyst.identify.conditions`.
+
+**No law** (`NearestCondition`): each fitted record keeps its own set and a condition
+takes the set of the record nearest to it (`condition_distance`: the differences of the
+same features, summed) — the baseline a law must beat on held-out records, and what a
+leave-one-out comparison keeps where none does.
 """
 
 from __future__ import annotations
