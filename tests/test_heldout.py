@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 
+import jax
 import numpy as np
 import pytest
 
@@ -425,6 +426,10 @@ def test_loops_no_form_carries_across_keep_the_nearest_loops_fit_and_predict_by_
         predicted.append(json.loads(capsys.readouterr().out)["loops"])
     assert [r["rms"] for r in predicted[0]] == pytest.approx([r["rms"] for r in predicted[1]],
                                                              rel=1e-9)
+    from jaxhyst.cli.models import load_model_fit  # (report's reading of the model file)
+
+    params = load_model_fit(str(saved))[3]
+    assert np.shape(jax.tree.leaves(params)[0]) == (4,)
     best = min((f for f in held["forms"] if f != "nearest"),
                key=lambda f: held["forms"][f]["score"])
     for row, fitted in zip(predicted[0], (1, 3), strict=True):  # (44 and 220 A/m nearest)

@@ -62,7 +62,7 @@ def load_model_fit(path: str):
         raise CLIError(missing)
     model = jh.load_model(path)
     params = ({n: np.float64(v) for n, v in model.coefficients.items()}
-              if model.law is not None else model.parameter_tree())
+              if model.coefficients is not None else model.parameter_tree())
     return meta, spec, build_problem(spec), params
 
 
