@@ -363,8 +363,10 @@ def held_out_figure(curves, kept: str, spec, actuator, output: str, path: str) -
     for lp, predicted, data in curves:
         H = np.asarray(loop_field(lp, actuator, spec["data"]))[-predicted.shape[0]:]
         loops.append((f"loop {lp.index} (held out)", H, predicted, data))
-    plot_predictions(loops, output, path, title=f"leave one loop out: {kept}, each "
-                     "loop predicted from the others")
+    plot_predictions(loops, output, path, title=(
+        "leave one loop out: each loop predicted by the nearest other loop's fit"
+        if kept == NEAREST else f"leave one loop out: {kept}, each loop predicted from "
+        "the others"))
 
 
 def held_out_text(held: dict) -> str:
