@@ -103,6 +103,11 @@ class Model(eqx.Module):
                                    for k, v in given.items()})
         self.law.warn_outside(conditions)
         if isinstance(self.law, NearestCondition):  # (the nearest fitted loop's set)
+            sets = np.shape(self.params.Ms)
+            if sets != (self.law.n_records,):
+                raise ValueError(f"this model holds parameters of shape {sets} and a "
+                                 f"NearestCondition of {self.law.n_records} records: give "
+                                 "one parameter set (leaves of shape (L,)) per record.")
             i = int(self.law.nearest(conditions)[0])
             pick = lambda x: x[i] if np.ndim(x) else x  # noqa: E731
             return Model(jax.tree.map(pick, self.params), self.actuator,

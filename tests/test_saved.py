@@ -179,3 +179,5 @@ def test_a_nearest_condition_model_is_saved_and_gives_the_nearest_loops_set(tmp_
         back.at(amplitude=12e3)  # (the loops differ in frequency: it is needed)
     np.testing.assert_array_equal(nearest.nearest(jh.Conditions(
         amplitude=(10e3, 20e3), frequency=(400.0, 50.0))), [2, 1])
+    with pytest.raises(ValueError, match="one parameter set .* per record"):
+        jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1, law=nearest).at(amplitude=1e4, frequency=50.0)
