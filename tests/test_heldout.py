@@ -426,6 +426,8 @@ def test_loops_no_form_carries_across_keep_the_nearest_loops_fit_and_predict_by_
         predicted.append(json.loads(capsys.readouterr().out)["loops"])
     assert [r["rms"] for r in predicted[0]] == pytest.approx([r["rms"] for r in predicted[1]],
                                                              rel=1e-9)
+    for rows in predicted:  # (each says whose parameters: 42 → 44 A/m, 210 → 220 A/m)
+        assert [r["by_fitted_loop"] for r in rows] == [1, 3]
     from jaxhyst.cli.models import load_model_fit  # (report's reading of the model file)
 
     params = load_model_fit(str(saved))[3]

@@ -46,7 +46,8 @@ def _beyond(conditions, i) -> dict:
 
 
 def _conditions(spec, loops):
-    """Each loop's {amplitude, frequency, temperature} (the nearest baseline's metric)."""
+    """Each loop's {amplitude, frequency, temperature} (the nearest baseline's metric) and
+    its index in the file (``loop``)."""
     import jaxhyst as jh
 
     from .problems import loop_conditions
@@ -54,8 +55,8 @@ def _conditions(spec, loops):
     c = loop_conditions(spec, loops, jh.Actuator(**spec["actuator"]))
     return [{"amplitude": c.amplitude[i],
              "frequency": None if c.frequency is None else c.frequency[i],
-             "temperature": None if c.temperature is None else c.temperature[i]}
-            for i in range(len(loops))]
+             "temperature": None if c.temperature is None else c.temperature[i],
+             "loop": loops[i].index} for i in range(len(loops))]
 
 
 def comparison_shape(spec, loops) -> list | None:

@@ -7,7 +7,7 @@ import os
 
 from .models import is_model_file
 from .options import COUNT, FINITE, POSITIVE
-from .problems import load_result
+from .problems import load_result, loop_conditions
 from .spec import CLIError, check_outputs, loop_field, print_result, select_loops, warn
 
 
@@ -57,6 +57,7 @@ def run(args) -> int:
         expect,
         expected_error,
         fitted_range,
+        nearest_loop,
         nearest_of,
         outside,
         predict_loops,
@@ -127,6 +128,9 @@ def run(args) -> int:
                                             records_of(fitted).actuator, fitted_conditions,
                                             overrides)
         expect(row, far, expected)
+        if nearest is not None:  # (which fitted loop's set predicted it)
+            row["by_fitted_loop"] = nearest_loop(spec, nearest, loop_conditions(
+                {**spec, "data": source}, [lp], actuator, overrides))
     if args.png:
         from jaxhyst.plots import plot_predictions
 

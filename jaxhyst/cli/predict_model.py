@@ -22,17 +22,27 @@ def run_model(args) -> int:
 
     import numpy as np
 
+    import jaxhyst as jh
     from jaxhyst.identify.outputs import output_kind
     from jaxhyst.io import SIGNAL_OUTPUTS, read_loops, write_columns_csv
+    from jaxhyst.saved import read_header
 
     from .models import model_at, read_model
-    from .predictions import error_summary, expect, outside, prediction_line, scaled_loop
+    from .predictions import (
+        error_summary,
+        expect,
+        nearest_loop,
+        outside,
+        prediction_line,
+        scaled_loop,
+    )
 
     check_outputs(args)
     if not args.data:
         raise CLIError(f"{args.result} is a saved model: give the data file whose loops it "
                        "predicts (predict MODEL.eqx DATA).")
     saved = read_model(args.result)
+    problem = read_header(args.result).get("meta", {}).get("problem")  # (as fitted)
     law = saved.law.features if saved.law is not None else ()
     for name, feature in (("frequency", "log_f"), ("temperature", "T")):
         if vars(args)[name] is not None and feature not in law:
@@ -67,6 +77,10 @@ def run_model(args) -> int:
         if fitted is not None:
             row["extrapolation"], far = outside(spec, lp, saved.actuator, fitted, overrides)
             expect(row, far, expected)
+        if isinstance(saved.law, jh.NearestCondition):  # (which fitted loop's set)
+            row["by_fitted_loop"] = nearest_loop(problem, saved.law, jh.Conditions(
+                frequency=None if f is None else (f,), amplitude=(float(np.max(np.abs(H))),),
+                temperature=None if T is None else (T,)))
         rows.append(row)
         curves.append((f"loop {lp.index}", H, pred, data))
         nan = np.full(pred.shape, np.nan)

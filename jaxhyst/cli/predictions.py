@@ -123,6 +123,14 @@ def model_to_save(spec, problem, result):
     return model
 
 
+def nearest_loop(spec, nearest, conditions) -> int:
+    """The file index of the fitted loop whose set a nearest-condition model (``nearest``,
+    fitted as ``spec`` says: `nearest_of`) uses at ``conditions`` (one record)."""
+    i = int(nearest.nearest(conditions)[0])
+    rows = (spec or {}).get("nearest_conditions") or []
+    return int(rows[i].get("loop", i)) if i < len(rows) else i
+
+
 def nearest_of(spec):
     """The `jaxhyst.NearestCondition` of a fit that kept the nearest-condition baseline
     (``identify --joint --leave-one-out``: ``spec["predict_by"]`` "nearest", the fitted
@@ -241,7 +249,9 @@ def prediction_line(row) -> str:
            f"{100 * row['rms'] / row['data_scale']:.2g} % of max|data|)") if "rms" in row \
         else (f" (not compared with the file's data: {row['not_compared']})"
               if "not_compared" in row else " (no data to compare)")
-    return f"  loop {row['loop']}{err}{where_text(row)}"
+    by = (f" (by fitted loop {row['by_fitted_loop']}'s parameters: the nearest)"
+          if "by_fitted_loop" in row else "")
+    return f"  loop {row['loop']}{by}{err}{where_text(row)}"
 
 
 def where_text(row) -> str:
