@@ -134,6 +134,13 @@ def _again(args, fit, params, method, source: str, rms: float, index):
     return (again, problem, spec) if again.rms_error < result.rms_error else fit
 
 
+def _unseen(own, alone, seen, i, j):
+    """Loop j's best fit that loop i did not shape: its own fit (``own[j]``, perhaps
+    re-fitted from another loop's or a fold's fit) where loop i is not among the loops
+    whose data led to it (``seen[j]``), else its fit from its own data alone."""
+    return own[j][0] if j < len(own) and i not in seen[j] else alone[j]
+
+
 def _data_scale(spec, loop) -> float:
     """max |data| of the signal a fit of ``loop`` fits (its size, for relative errors)."""
     import numpy as np
@@ -198,26 +205,29 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             result, problem, fitted = _fit(args, single, given, [lp], method)
             own.append((result, problem, fitted))
             seen.append({len(own) - 1})
-        # (each loop's fit from its own data alone: the folds' starts, which must not
-        # see the loop a fold holds out — a re-fit from a neighbour's fit would)
+        # (each loop's fit from its own data alone: what a fold starts from, and the
+        # baseline predicts by, where a re-fit from a neighbour's fit saw the held-out
+        # loop — `_unseen`)
         alone = alone or [r for r, _, _ in own]
         if not partial and not stop_requested():
             own, sources = _own_best(args, own, loops, method)
             seen = [s | seen[j] if j is not None else s for s, j in zip(seen, sources,
                                                                        strict=True)]
-        # (the folds' seeds: the training loops' fits alone, the closest fits first —
-        # a batch takes as many as its starts allow)
         scale = [_data_scale(spec_f, lp) for lp in loops]
-        order = sorted(range(len(alone)), key=lambda j: alone[j].rms_error / scale[j])
         rows = []
         for i, held in enumerate(loops):
             if partial or stop_requested():
                 partial = True
                 break
             rest = [lp for j, lp in enumerate(loops) if j != i]
-            # (the training loops' fits alone among the starts)
-            seeds = [alone[j].params for j in order if j != i and
-                     not isinstance(alone[j].params, dict)] if shared else []
+            # (the starts: the training loops' own fits that never saw loop i — a fit
+            # re-fitted from one that did, only as the loop alone fitted it — the
+            # closest first: a batch takes as many as its starts allow)
+            train = [j for j in range(len(alone)) if j != i]
+            fits = {j: _unseen(own, alone, seen, i, j) for j in train}
+            seeds = [fits[j].params for j in sorted(train, key=lambda j: fits[j].rms_error /
+                                                    scale[j])
+                     if not isinstance(fits[j].params, dict)] if shared else []
             note("leave-one-out", f"{form}: fitting without loop {held.index} …")
             result, problem, fitted = _fit(args, spec_f, given, rest, method, seeds)
             if result.result == "interrupted":
@@ -249,9 +259,8 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                 if others:
                     j = min(others, key=lambda j: condition_distance(conditions[i],
                                                                      conditions[j]))
-                    result_j, problem_j, spec_j = own[j]
-                    if i in seen[j]:  # (its best fit started from what loop i shaped)
-                        result_j = alone[j]
+                    _, problem_j, spec_j = own[j]
+                    result_j = _unseen(own, alone, seen, i, j)
                     near = _predict(spec_j, problem_j, result_j.params, held)
                     near_curves.setdefault(form, []).append((held, *near.pop("_curve")))
                     row["nearest_loop"], row["nearest_rms"] = loops[j].index, near["rms"]
