@@ -349,7 +349,8 @@ def test_a_comparison_keeps_the_nearest_condition_baseline_where_it_predicts_bes
     """The baseline is scored from the best form's single fits (its rows: the nearest
     other loop's fit predicting each held-out loop) and kept where it beats every form —
     in a comparison; one form named is fitted as named and the baseline only shown."""
-    from jaxhyst.cli.heldout import NEAREST, choose, held_out_text
+    from jaxhyst.cli.heldout import held_out_text
+    from jaxhyst.cli.nearest import NEAREST, choose
 
     def form(score, near):
         rows = [{"loop": i, "rms": score, "data_scale": 1.0, "outcome": "successful",
