@@ -271,7 +271,6 @@ class ConditionModel:
         return out
 
 
-
 def _warn_outside(features, fitted_range: dict, unit, conditions: Conditions) -> None:
     """A `ConditionWarning` for each of ``conditions`` outside ``fitted_range`` ({feature:
     (lowest, highest)}) in one of ``features``, saying how far (``unit(feature)``: the
@@ -365,8 +364,9 @@ class NearestCondition:
             raw = conditions.raw(f)
             if raw is None:
                 what, unit = FEATURES[f]
+                unit = dict(self.units).get(f, unit)
                 raise ValueError(f"the model picks the nearest of its {self.n_records} "
-                                 f"fitted records by {what} too, and the records to predict "
+                                 f"fitted records by {what}, and the records to predict "
                                  f"carry none ({unit}); give it.")
             cols.append(np.abs(_feature(f, raw)[:, None] -
                                _feature(f, self.records.raw(f))[None, :]))
@@ -378,6 +378,7 @@ class NearestCondition:
         """As `ConditionModel.warn_outside`: a `ConditionWarning` per condition beyond the
         fitted records' range (a ``ValueError`` for one the records differ in and the
         conditions lack)."""
+        self.nearest(conditions)  # (a condition it needs and is not given: its own line)
         _warn_outside(self.features, dict(self.fitted_range),
                       lambda f: dict(self.units).get(f, "A/m" if f == "log_amplitude" else
                                                      FEATURES[f][1]), conditions)
