@@ -150,7 +150,8 @@ def test_a_condition_law_is_saved_and_evaluated_at_a_new_amplitude(tmp_path):
         jh.Model(p, jh.ACTUATOR1).at(amplitude=9e3)
 
 
-def test_a_nearest_condition_model_is_saved_and_gives_the_nearest_loops_set(tmp_path):
+def test_a_nearest_condition_model_is_saved_and_gives_the_nearest_loops_set(tmp_path,
+                                                                              capsys):
     """The nearest-condition model (the baseline a leave-one-out comparison may keep):
     one set per fitted loop, saved with the loops' conditions, and at a condition it
     gives the set of the loop nearest to it — by amplitude and frequency, the conditions
@@ -181,3 +182,9 @@ def test_a_nearest_condition_model_is_saved_and_gives_the_nearest_loops_set(tmp_
         amplitude=(10e3, 20e3), frequency=(400.0, 50.0))), [2, 1])
     with pytest.raises(ValueError, match="one parameter set .* per record"):
         jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1, law=nearest).at(amplitude=1e4, frequency=50.0)
+    from jaxhyst.cli import main  # (compensate evaluates laws of the frequency only)
+
+    assert main(["compensate", "--model", str(tmp_path / "near.eqx"), "--current-limit",
+                 "2.5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "picks the nearest of its fitted loops by log_amplitude" in err

@@ -167,9 +167,11 @@ def _model(args):
         other = [f for f in (model.law.features if model.law is not None else ())
                  if f != "log_f"]
         if other:
-            raise CLIError(f"--model {args.model}: its condition law varies with "
-                           f"{', '.join(other)}; compensate evaluates a law of the frequency "
-                           "only: save model.at(…) from Python (jaxhyst.save_model) first.")
+            what = ("picks the nearest of its fitted loops by" if isinstance(
+                model.law, jh.NearestCondition) else "its condition law varies with")
+            raise CLIError(f"--model {args.model}: {what} {', '.join(other)}; compensate "
+                           "evaluates a law of the frequency only: save model.at(…) from "
+                           "Python (jaxhyst.save_model) first.")
         model = model_at(args, model, args.model, frequency=args.frequency)
         if str(model.actuator.name).startswith("none"):
             raise CLIError(f"--model {args.model}: a model of a material alone (fitted to M or "
