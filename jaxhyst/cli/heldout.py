@@ -179,6 +179,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
     table, partial, short, curves, singles, folds = {}, False, [], {}, {}, {}
     near_curves, owns = {}, {}
     pad_to = comparison_shape(spec, loops)
+    scale = [_data_scale(spec, lp) for lp in loops]  # (each loop's size, for its fits)
     for form in forms:
         spec_f = {**spec, **candidate_spec(args, form), "pad_to": pad_to}
         # (a fold's parameters of the same kind as a single loop's: shared, no law)
@@ -210,7 +211,6 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             own, sources = _own_best(args, own, loops, method)
             seen = [s | seen[j] if j is not None else s for s, j in zip(seen, sources,
                                                                        strict=True)]
-        scale = [_data_scale(spec_f, lp) for lp in loops]
         rows = []
         for i, held in enumerate(loops):
             if partial or stop_requested():

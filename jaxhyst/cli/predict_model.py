@@ -42,7 +42,8 @@ def run_model(args) -> int:
         raise CLIError(f"{args.result} is a saved model: give the data file whose loops it "
                        "predicts (predict MODEL.eqx DATA).")
     saved = read_model(args.result)
-    problem = read_header(args.result).get("meta", {}).get("problem")  # (as fitted)
+    meta = read_header(args.result).get("meta", {})
+    problem = meta.get("problem")  # (the spec it was fitted with)
     law = saved.law.features if saved.law is not None else ()
     for name, feature in (("frequency", "log_f"), ("temperature", "T")):
         if vars(args)[name] is not None and feature not in law:
@@ -50,7 +51,7 @@ def run_model(args) -> int:
                            f"{name}; it would have no effect.")
     loops = select_loops(read_loops(args.data, None), args.loop, args.data)
     spec = {"data": args.data, "run_in_periods": 1}
-    fitted, expected = _fitted_conditions(args.result, saved.actuator)
+    fitted, expected = _fitted_conditions(args.result, meta, saved.actuator)
     overrides = {"frequency": args.frequency, "temperature": args.temperature}
     rows, curves, columns = [], [], {k: [] for k in ("loop", "H_A_per_m", "predicted",
                                                     "data", "error")}
@@ -103,17 +104,15 @@ def run_model(args) -> int:
     return 0
 
 
-def _fitted_conditions(path: str, actuator):
+def _fitted_conditions(path: str, meta: dict, actuator):
     """(the fitted loops' conditions {name: [lowest, highest]} or None, the error the
-    leave-one-out folds lead one to expect or None) from a model file's header: as
-    ``identify --save-model`` records them, or, for a file saved before it did, the
-    conditions of the data file it names, where that is still there and unchanged."""
-    from jaxhyst.saved import read_header
-
+    leave-one-out folds lead one to expect or None) from the header's ``meta`` of the
+    model file at ``path``: as ``identify --save-model`` records them, or, for a file
+    saved before it did, the conditions of the data file it names, where that is still
+    there and unchanged."""
     from .models import fitted_data
     from .predictions import fitted_range
 
-    meta = read_header(path).get("meta", {})
     if "fitted_conditions" in meta:
         return meta["fitted_conditions"], meta.get("expected_error")
     spec, missing = fitted_data(path, meta)

@@ -61,15 +61,15 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     drives = [loop_drive(spec, lp, name or "B", actuator, source) for lp in loops]
     pad_to = spec.get("pad_to") or (common_shape(drives) if len(drives) > 1 else None)
     nearest = nearest_of(spec)
-    if nearest is not None:
+    if nearest is not None:  # (each loop's nearest fitted loop, once for all)
         try:  # (a condition the fitted loops differ in, which the loops lack: one line)
-            nearest.nearest(loop_conditions({**spec, "data": source or spec["data"]}, loops,
-                                            actuator, conditions))
+            by = nearest.nearest(loop_conditions({**spec, "data": source or spec["data"]},
+                                                 loops, actuator, conditions))
         except ValueError as err:
             raise CLIError(f"{source or spec['data']}: {err} (a column, or --frequency and "
                            "--temperature)") from None
     out = []
-    for lp, drive in zip(loops, drives, strict=True):
+    for k, (lp, drive) in enumerate(zip(loops, drives, strict=True)):
         if isinstance(fitted, jh.ConditionProblem):
             try:
                 tree = fitted.at(params, loop_conditions({**spec, "data": source or
@@ -80,9 +80,7 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
                                "and --temperature)") from None
             tree = jax.tree.map(lambda x: np.asarray(x)[0], tree)
         elif nearest is not None:  # (the nearest fitted loop's set)
-            i = int(nearest.nearest(loop_conditions({**spec, "data": source or spec["data"]},
-                                                    [lp], actuator, conditions))[0])
-            tree = jax.tree.map(lambda x, i=i: np.asarray(x)[i], params)
+            tree = jax.tree.map(lambda x, i=int(by[k]): np.asarray(x)[i], params)
         elif np.ndim(split_parameters(params)[0].Ms) == 1:
             per_loop = [np.asarray(x) for x in jax.tree.leaves(params)]
             if any(np.ptp(x) > 0 for x in per_loop):
