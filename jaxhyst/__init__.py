@@ -45,6 +45,7 @@ _EXPORTS = {
                      "TqdmProgressMeter"), ".progress"),
     "Interrupted": "._interrupt",
     "fit_many": ".batch",
+    "times_from_frequency": ".loop_times",
     **dict.fromkeys(("Model", "load_model", "save_model"), ".saved"),
     **dict.fromkeys(("Compensation", "DelayError", "IterativeLearning", "Reference",
                      "SimulatedPlant", "compensate", "multitone_reference",
@@ -52,7 +53,7 @@ _EXPORTS = {
                     ".control"),
 }
 _SUBMODULES = ("actuator", "analysis", "batch", "control", "drive", "fit", "identify", "io",
-               "model", "names", "params", "plots", "progress", "saved", "sharding")
+               "loop_times", "model", "names", "params", "plots", "progress", "saved", "sharding")
 
 __all__ = ["cpu_loop_kernels", "enable_compilation_cache", *_EXPORTS]
 

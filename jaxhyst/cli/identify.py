@@ -45,6 +45,7 @@ from .spec import (
     note,
     parameters_arg,
     print_result,
+    read_data,
     warn,
 )
 
@@ -230,7 +231,7 @@ def check_options(args) -> dict:
 def run(args) -> int:
     import jaxhyst as jh
     from jaxhyst._interrupt import stop_requested
-    from jaxhyst.io import bounds_to_json, json_safe, read_loops, write_json
+    from jaxhyst.io import bounds_to_json, json_safe, write_json
 
     spec = check_options(args)
     given = bounds_arg(args.bounds)
@@ -238,7 +239,7 @@ def run(args) -> int:
     size = os.path.getsize(spec["data"]) if os.path.isfile(spec["data"]) else 0
     if size > 5e6 and args.progress:  # (a few seconds: say so before)
         note("identify", f"reading {args.data} ({size / 1e6:.0f} MB) …")
-    loops = read_loops(spec["data"], spec["columns"])
+    loops = read_data(spec["data"], spec["columns"], label="identify" if args.progress else None)
     if size > 5e6 and args.progress:
         note("identify", f"read {sum(lp.n_samples for lp in loops)} samples in "
                          f"{len(loops)} loop{'s' if len(loops) > 1 else ''}")

@@ -8,7 +8,15 @@ import os
 from .models import is_model_file
 from .options import COUNT, FINITE, POSITIVE
 from .problems import load_result, loop_conditions
-from .spec import CLIError, check_outputs, loop_field, print_result, select_loops, warn
+from .spec import (
+    CLIError,
+    check_outputs,
+    loop_field,
+    print_result,
+    read_data,
+    select_loops,
+    warn,
+)
 
 
 def add_parser(sub) -> None:
@@ -50,7 +58,7 @@ def run(args) -> int:
     import jaxhyst as jh
     from jaxhyst.drive import MAX_FIELD
     from jaxhyst.identify.conditions import ConditionWarning
-    from jaxhyst.io import read_loops, write_columns_csv
+    from jaxhyst.io import write_columns_csv
 
     from .predictions import (
         error_summary,
@@ -80,7 +88,7 @@ def run(args) -> int:
                        "H-driven fits; simulate its saved model (identify --save-model) with "
                        "'jaxhyst simulate --model FILE --flux-amplitude B --frequency F'.")
     source = args.data or spec["data"]
-    loops = select_loops(read_loops(source, spec.get("columns")), args.loop, source)
+    loops = select_loops(read_data(source, spec.get("columns")), args.loop, source)
     overrides = {"frequency": args.frequency, "temperature": args.temperature}
     nearest = nearest_of(spec)  # (a fit that kept the nearest-condition baseline)
     varies = fitted.form.features if isinstance(fitted, jh.ConditionProblem) else \

@@ -12,6 +12,7 @@ from .spec import (
     loop_field,
     loop_signal,
     print_result,
+    read_data,
     select_loops,
 )
 
@@ -24,7 +25,7 @@ def run_model(args) -> int:
 
     import jaxhyst as jh
     from jaxhyst.identify.outputs import output_kind
-    from jaxhyst.io import SIGNAL_OUTPUTS, read_loops, write_columns_csv
+    from jaxhyst.io import SIGNAL_OUTPUTS, write_columns_csv
     from jaxhyst.saved import read_header
 
     from .models import model_at, read_model
@@ -49,7 +50,7 @@ def run_model(args) -> int:
         if vars(args)[name] is not None and feature not in law:
             raise CLIError(f"--{name}: the model in {args.result} does not vary with the "
                            f"{name}; it would have no effect.")
-    loops = select_loops(read_loops(args.data, None), args.loop, args.data)
+    loops = select_loops(read_data(args.data, None), args.loop, args.data)
     spec = {"data": args.data, "run_in_periods": 1}
     fitted, expected = _fitted_conditions(args.result, meta, saved.actuator)
     overrides = {"frequency": args.frequency, "temperature": args.temperature}

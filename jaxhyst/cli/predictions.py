@@ -5,7 +5,7 @@ prediction of each loop and its error."""
 from __future__ import annotations
 
 from .problems import loop_conditions
-from .spec import CLIError, loop_drive, loop_field
+from .spec import CLIError, loop_drive, loop_field, read_data
 
 
 def records_of(problem):
@@ -182,10 +182,8 @@ def fitted_range(spec, actuator, strict: bool = True) -> dict | None:
     loops' conditions cannot be read (some loops without a frequency …), a `CLIError`,
     or None if not ``strict``. ``actuator`` None: a material's loops (a field column)."""
     from jaxhyst.identify.joint import NO_ACTUATOR
-    from jaxhyst.io import read_loops
-
     actuator = NO_ACTUATOR if actuator is None else actuator
-    loops = read_loops(spec["data"], spec.get("columns"))
+    loops = read_data(spec["data"], spec.get("columns"))
     if spec.get("loop") is not None and not spec.get("joint"):
         loops = [lp for lp in loops if lp.index == spec["loop"]] or loops
     try:

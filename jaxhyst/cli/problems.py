@@ -16,7 +16,7 @@ from jaxhyst.names import (
     VARIANT_CLASSES,
 )
 
-from .spec import CLIError, loop_drive, loop_field, loop_signal
+from .spec import CLIError, loop_drive, loop_field, loop_signal, read_data
 
 #: Loss coefficients (`jaxhyst.Losses`) and the built-in forms' own parameters: the names
 #: beyond the ten a box, --fix or --vary may give.
@@ -285,11 +285,11 @@ def build_problem(spec: dict, loops=None):
     import jaxhyst as jh
     from jaxhyst.identify.joint import fix_structural
     from jaxhyst.identify.outputs import output_kind
-    from jaxhyst.io import SIGNAL_OUTPUTS, bounds_from_json, read_loops
+    from jaxhyst.io import SIGNAL_OUTPUTS, bounds_from_json
     from jaxhyst.model.paths import own_parameters
 
     if loops is None:
-        loops = read_loops(spec["data"], spec.get("columns"))
+        loops = read_data(spec["data"], spec.get("columns"))
     ids = [lp.index for lp in loops]
     bounds = bounds_from_json(spec["bounds"])
     actuator = jh.Actuator(**spec["actuator"])

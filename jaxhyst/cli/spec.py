@@ -182,6 +182,20 @@ def note(label: str, text: str) -> None:
     print(f"[{label}] {text}", file=sys.stderr, flush=True)
 
 
+def read_data(path, columns=None, *, label: str | None = None) -> list:
+    """The loops of a data file (`jaxhyst.io.read_loops`), each loop with a frequency and
+    no t column given times from it where its samples are a sinusoid's, uniform in time
+    (`jaxhyst.loop_times.times_from_frequency`): every command that reads loops reads
+    them alike. The line saying so (or why not) is noted under ``label`` (None: not)."""
+    from jaxhyst.io import read_loops
+    from jaxhyst.loop_times import times_from_frequency
+
+    loops, text = times_from_frequency(read_loops(path, columns))
+    if text and label:
+        note(label, text)
+    return loops
+
+
 def warn(args, text: str) -> None:
     print(f"jaxhyst {args.command}: warning: {cli_wording(text, args)}", file=sys.stderr,
           flush=True)
