@@ -53,7 +53,8 @@ def _write(path, loops, with_t=True, triangle=None):
         if k == triangle:
             H = 120 * 2 / np.pi * np.arcsin(np.sin(2 * np.pi * f * t))
         B = 0.4 * np.tanh(H / 60 + 0.3 * np.cos(2 * np.pi * f * t))
-        rows += [(k, f, *([tt] if with_t else []), h, b) for tt, h, b in zip(t, H, B)]
+        rows += [(k, f, *([tt] if with_t else []), h, b) for tt, h, b in
+                 zip(t, H, B, strict=True)]
     with open(path, "w", encoding="utf-8") as fh:
         fh.write(",".join(cols) + "\n")
         fh.writelines(",".join(f"{v:.17g}" for v in r) + "\n" for r in rows)

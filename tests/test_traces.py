@@ -24,6 +24,15 @@ def _problem(substeps=2, drive=DRIVE):
                                 fixed=FIXED, substeps=substeps)
 
 
+def _shaped(substeps=2, drive=DRIVE):
+    """`_problem`'s structure with data that simulate nothing: a key depends on shapes
+    and structure only (a simulation under each patched constant would compile)."""
+    data = np.linspace(0.0, 1e-6, drive.t.shape[0] - drive.run_in)
+    fixed = {n: float(getattr(jh.TABLE1_TRUE, n)) for n in FIXED}
+    return jh.Problem(data, drive, jh.ACTUATOR1, jh.ParameterSpace(jh.TABLE1_BOUNDS, fixed),
+                      substeps=substeps)
+
+
 @pytest.fixture
 def kept(tmp_path, monkeypatch):
     """Traces kept in ``tmp_path`` (the compilation cache stays where it is), none in
@@ -75,27 +84,27 @@ def test_the_key_tells_apart_what_changes_a_trace(kept, monkeypatch):
         return _traces._key("jaxhyst.identify.problem.cost_at", leaves, treedef)
 
     z = jnp.zeros(3)
-    base = key(_problem(), z)
-    assert key(_problem(), jnp.ones(3)) == base  # (values of arrays are data)
-    assert key(_problem(substeps=4), z) != base  # (structure)
-    assert key(_problem(), jnp.zeros(4)) != base  # (a shape)
-    assert key(_problem(), jnp.asarray(0.0) + z) == base
-    assert key(_problem(), 1.0) != key(_problem(), 2.0)  # (a Python number is static)
+    base = key(_shaped(), z)
+    assert key(_shaped(), jnp.ones(3)) == base  # (values of arrays are data)
+    assert key(_shaped(substeps=4), z) != base  # (structure)
+    assert key(_shaped(), jnp.zeros(4)) != base  # (a shape)
+    assert key(_shaped(), jnp.asarray(0.0) + z) == base
+    assert key(_shaped(), 1.0) != key(_shaped(), 2.0)  # (a Python number is static)
     longer = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=64)
-    assert key(_problem(drive=longer), z) != base
+    assert key(_shaped(drive=longer), z) != base
     from jaxhyst.model import interval, play
 
     monkeypatch.setattr(play, "NEWTON_STEPS", play.NEWTON_STEPS + 1)  # (a constant)
-    assert key(_problem(), z) != base
+    assert key(_shaped(), z) != base
     monkeypatch.undo()
     monkeypatch.setattr(interval, "FORCE_BRANCH_FREE", True)  # (the branch-free loops)
-    assert key(_problem(), z) != base
+    assert key(_shaped(), z) != base
     monkeypatch.undo()
     from jaxhyst.model.simulate import plain_vmap
 
     with plain_vmap():  # (a switch that is not a constant)
-        assert key(_problem(), z) != base
-    assert key(_problem(), z) == base
+        assert key(_shaped(), z) != base
+    assert key(_shaped(), z) == base
     # static values equal by == but of other types, asked twice (the second time from
     # the remembered structures): told apart each time
     keys = [key(_Static(v), z) for v in (1, 1.0, True, 1, 1.0, True)]

@@ -169,7 +169,8 @@ def rate_note(spec, loops, candidates=()) -> str | None:
     lo, hi = span
     return (f"the loops were measured at {lo:.4g}–{hi:.4g} Hz and the model is rate "
             "independent: it draws every frequency alike. --losses eddy,excess,lag,relax adds "
-            "the rate-dependent model (the file needs times), --variant "
+            "the rate-dependent model (the file needs times: a t column, or loops sampled "
+            "uniformly from a sinusoid with their frequency), --variant "
             "play+eddy+excess,play+relax compares mechanisms; --vary P:log_f a law in the "
             "frequency")
 
