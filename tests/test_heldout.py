@@ -64,6 +64,36 @@ def test_forms_are_compared_and_the_best_predictor_is_kept(tmp_path, capsys):
     assert "kept: play" in text and json.loads(out.read_text())["problem"]["variant"] == "play"
 
 
+@pytest.mark.extended  # (a leave-one-out of long loops)
+def test_long_loops_are_compared_on_every_kth_sample_and_measured_on_all(tmp_path, capsys):
+    """Loops of 1 100 samples: every fit of the comparison sees every 3rd sample (at most
+    `FOLD_SAMPLES`); every error is measured on all. The samples in between carry an
+    offset a fit on them would have to absorb: the folds' fits stay near the noise-free
+    model (on what they see) while every held-out and own-fit error includes it."""
+    from jaxhyst.cli.heldout import FOLD_SAMPLES
+
+    data = tmp_path / "loops.csv"
+    _write(data, samples=(1100, 1100, 1100))
+    lines = data.read_text().splitlines()
+    offset = 0.05  # (T; the loops' B reaches 0.1–0.3 T)
+    per_loop = {}
+    for n, line in enumerate(lines[1:], start=1):
+        i, h, b = line.split(",")
+        k = per_loop[i] = per_loop.get(i, -1) + 1
+        lines[n] = f"{i},{h},{float(b) + (offset if k % 3 else 0.0):.10g}"
+    data.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "r.json"
+    main(["identify", str(data), *COMMON, "--variant", "play", "--max-steps", "60",
+          "--starts", "2", "--out", str(out)])
+    assert "each loop alone and each fold fitted on one sample in 3" in capsys.readouterr().err
+    held = json.loads(out.read_text())["leave_one_out"]
+    assert held["fitted_every"] == 3 == -(-1101 // FOLD_SAMPLES)
+    floor = offset * np.sqrt(2 / 3) * 0.9  # (the offset's rms over all samples, nearly)
+    for r in held["forms"]["play"]["rows"]:
+        assert r["rms_fitted"] < 0.2 * floor, r  # (the fits did not see the offset)
+        assert r["rms"] > floor and r["own_rms"] > floor and r["nearest_rms"] > floor
+
+
 def test_a_folds_box_does_not_depend_on_the_loop_it_holds_out(tmp_path):
     boxes = []
     for scale in (1.0, 1.5):  # only the held-out loop (the last) differs

@@ -207,6 +207,18 @@ def refine_from(args, problem, params, what: str = "from the previous fit",
                     progress=meter, report=_report(args, quiet))
 
 
+def thinned(loops, k: int) -> list:
+    """Every k-th sample of each loop (its times, drive and signals; conditions kept)."""
+    import dataclasses
+
+    if k <= 1:
+        return list(loops)
+    return [dataclasses.replace(
+        lp, t=None if lp.t is None else lp.t[::k], H=None if lp.H is None else lp.H[::k],
+        I=None if lp.I is None else lp.I[::k],
+        signals={q: a[::k] for q, a in lp.signals.items()}) for lp in loops]
+
+
 #: Observed samples per loop above which a multi-start local fit first runs on every
 #: k-th sample (rate-independent M or B loops) and is then polished on all of them.
 DECIMATE_ABOVE = 4000
@@ -219,8 +231,6 @@ def decimated_first(args, spec, loops, problem, method):
     the loop's shape is what the parameters are fitted to, and the starts' work grows
     with the samples), then one LM solve on all samples from the best — so that the
     cost grows linearly with the data. None where it does not apply."""
-    import dataclasses
-
     from jaxhyst.identify.outputs import OUTPUTS as OUTPUT_NAMES
     from jaxhyst.identify.outputs import output_kind
 
@@ -230,10 +240,7 @@ def decimated_first(args, spec, loops, problem, method):
             or not output_kind(problem.output).magnetic_only):
         return None
     k = -(-longest // DECIMATED)
-    thin = [dataclasses.replace(
-        lp, t=None if lp.t is None else lp.t[::k], H=None if lp.H is None else lp.H[::k],
-        I=None if lp.I is None else lp.I[::k],
-        signals={q: a[::k] for q, a in lp.signals.items()}) for lp in loops]
+    thin = thinned(loops, k)
     if args.progress:
         note("identify", f"{longest} samples in a loop: the starts on every {k}th sample, "
                          "then one solve on all of them")

@@ -25,6 +25,12 @@ from .candidates import candidate_spec, split_candidate
 from .nearest import NEAREST, choose
 from .spec import note
 
+#: Observed samples per loop at most in the comparison's fits (each loop alone, each
+#: fold: 2·L fits per candidate): a longer loop is fitted on every k-th sample, and every
+#: error — held out, own fit, nearest loop's — is measured on all its samples. The final
+#: fit uses all of them.
+FOLD_SAMPLES = 500
+
 
 def _beyond(conditions, i) -> dict:
     """{condition: how far loop i lies beyond the range of the other loops'} for each
@@ -175,10 +181,27 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
     from jaxhyst._interrupt import stop_requested
     from jaxhyst.identify import condition_distance
 
+    from .fitting import thinned
+
     conditions = _conditions(spec, loops)
     table, partial, short, curves, singles, folds = {}, False, [], {}, {}, {}
     near_curves, owns = {}, {}
-    pad_to = comparison_shape(spec, loops)
+    longest = max(lp.n_samples for lp in loops)
+    every = -(-longest // FOLD_SAMPLES)
+    fit_loops = thinned(loops, every)  # (what the comparison's fits see)
+    if every > 1:
+        note("leave-one-out", f"{longest} samples in a loop: each loop alone and each fold "
+                              f"fitted on one sample in {every}, every error measured on "
+                              "all of them; the final fit on all")
+    pad_to, pad_all = comparison_shape(spec, fit_loops), comparison_shape(spec, loops)
+
+    def on_all(fitted, problem, params, lp):  # (a prediction of all of lp's samples)
+        return _predict({**fitted, "pad_to": pad_all}, problem, params, lp)
+
+    def own_rms(fit, lp):  # (an own fit's error on all of its loop's samples)
+        result, problem, fitted = fit
+        return result.rms_error if every == 1 else \
+            on_all(fitted, problem, result.params, lp)["rms"]
     scale = [_data_scale(spec, lp) for lp in loops]  # (each loop's size, for its fits)
     for form in forms:
         spec_f = {**spec, **candidate_spec(args, form), "pad_to": pad_to}
@@ -192,7 +215,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
         # (seen[j]: the loops whose data shaped own[j], its starts included — a loop's
         # fit predicts a held-out loop for the baseline only where it never saw it)
         own, reused, seen = list(own), len(own), [set(x) for x in seen]
-        for lp in loops[len(own):]:
+        for lp in fit_loops[len(own):]:
             if stop_requested():
                 partial = True
                 break
@@ -208,7 +231,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
         # loop — `_unseen`)
         alone = alone or [r for r, _, _ in own]
         if not partial and not stop_requested():
-            own, sources = _own_best(args, own, loops, method)
+            own, sources = _own_best(args, own, fit_loops, method)
             seen = [s | seen[j] if j is not None else s for s, j in zip(seen, sources,
                                                                        strict=True)]
         rows = []
@@ -216,7 +239,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             if partial or stop_requested():
                 partial = True
                 break
-            rest = [lp for j, lp in enumerate(loops) if j != i]
+            rest = [lp for j, lp in enumerate(fit_loops) if j != i]
             # (the starts: the training loops' own fits that never saw loop i — a fit
             # re-fitted from one that did, only as the loop alone fitted it — the
             # closest first: a batch takes as many as its starts allow)
@@ -232,7 +255,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                 break
             folds.setdefault(form, []).append(  # (by name: a fold has fewer loops)
                 (tuple(problem.space.names), problem.space.free_values(result.params)))
-            predicted = _predict(fitted, problem, result.params, held)
+            predicted = on_all(fitted, problem, result.params, held)
             curves.setdefault(form, []).append((held, *predicted.pop("_curve")))
             far = _beyond(conditions, i)
             row = {"loop": held.index, **predicted,
@@ -242,7 +265,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             if not result.success:
                 short.append(f"{form}, fold without loop {held.index}: {result.result}")
             if i < len(own) and shared and \
-                    row["rms"] < own[i][0].rms_error * (1.0 - 1e-3):
+                    row["rms"] < own_rms(own[i], held) * (1.0 - 1e-3):
                 # (the fold, which never saw the loop, predicts it better than its own fit:
                 # the own fit stopped in a higher valley)
                 again = _again(args, own[i], result.params, method, "from the fold's fit",
@@ -250,7 +273,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                 if again is not own[i]:  # (the fold saw every loop but this one)
                     own[i], seen[i] = again, set(range(len(loops)))
             if i < len(own):
-                row["own_rms"] = own[i][0].rms_error
+                row["own_rms"] = own_rms(own[i], held)
                 row["ratio"] = row["rms"] / max(row["own_rms"], 1e-300)
                 others = [j for j in range(len(own)) if j != i]
                 if others:
@@ -258,7 +281,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                                                                      conditions[j]))
                     _, problem_j, spec_j = own[j]
                     result_j = _unseen(own, alone, seen, i, j)
-                    near = _predict(spec_j, problem_j, result_j.params, held)
+                    near = on_all(spec_j, problem_j, result_j.params, held)
                     near_curves.setdefault(form, []).append((held, *near.pop("_curve")))
                     row["nearest_loop"], row["nearest_rms"] = loops[j].index, near["rms"]
                     row["nearest_outcome"] = result_j.result
@@ -282,7 +305,8 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             break
     kept, source = choose(table, conditions, comparison=len(forms) > 1)
     out = {"forms": table, "kept": kept, "partial": partial, "stopped_short": short,
-           "_curves": curves.get(kept, []), "_folds": folds.get(kept, [])}
+           "fitted_every": every, "_curves": curves.get(kept, []),
+           "_folds": folds.get(kept, [])}
     if kept == NEAREST:  # (its curves and fits: the source form's single fits)
         out["_curves"], out["_own"] = near_curves[source], owns[source]
     return out
@@ -309,8 +333,11 @@ def held_out_figure(curves, kept: str, spec, actuator, output: str, path: str) -
 
 def held_out_text(held: dict) -> str:
     """The table of a leave-one-out run, for the terminal."""
+    every = held.get("fitted_every", 1)
     lines = ["\n  leave one loop out: each loop predicted from a fit of the others (rms; × "
-             "its own fit's rms; the nearest measured loop's fit)"]
+             "its own fit's rms; the nearest measured loop's fit)" +
+             (f"; every fit on one sample in {every}, every error on all" if every > 1
+              else "")]
     for form, t in held["forms"].items():
         cells = []
         for r in t["rows"]:
