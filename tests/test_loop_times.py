@@ -61,8 +61,7 @@ def _write(path, loops, with_t=True, triangle=None):
     return path
 
 
-def test_loops_with_a_frequency_and_no_times_get_the_times_they_were_sampled_at(
-        tmp_path, capsys):
+def test_loops_with_a_frequency_and_no_times_get_the_times_they_were_sampled_at(tmp_path):
     family = [(50.0, 200), (100.0, 200), (400.0, 128)]
     timed = read_data(_write(tmp_path / "t.csv", family))
     untimed = jh.io.read_loops(_write(tmp_path / "u.csv", family, with_t=False))
@@ -73,8 +72,9 @@ def test_loops_with_a_frequency_and_no_times_get_the_times_they_were_sampled_at(
     assert "200–128" not in text and "128–200 samples a period" in text
     assert all(lp.t is None for lp in untimed)  # (the loops given are not changed)
     # the command line reads them alike, says so, and compares the rate mechanisms
-    loops = read_data(tmp_path / "u.csv", label="identify")
-    assert "[identify] times from the loops' frequencies" in capsys.readouterr().err
+    said = []
+    loops = read_data(tmp_path / "u.csv", said=said)
+    assert said[0].startswith("times from the loops' frequencies")
     args = build_parser().parse_args(["identify", str(tmp_path / "u.csv"), "--joint",
                                       "--leave-one-out"])
     assert tuple(candidates(args, loops)) == RATE_CANDIDATES
@@ -94,3 +94,13 @@ def test_one_loop_that_is_not_a_sinusoid_leaves_every_loop_without_times(tmp_pat
     for lp in plain:
         lp.conditions.clear()
     assert jh.times_from_frequency(plain) == (plain, None)
+
+
+def test_identify_says_how_the_loops_got_times_only_once_its_input_is_checked(tmp_path,
+                                                                               capsys):
+    from jaxhyst.cli import main
+
+    path = _write(tmp_path / "u.csv", [(50.0, 64), (100.0, 64)], with_t=False)
+    assert main(["identify", str(path), "--joint", "--vary", "k:pressure"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--vary 'k:pressure'" in err  # (bad input: one line)
