@@ -23,8 +23,8 @@ import numpy as np
 
 #: A sinusoid "fits" where the rms of what it leaves is at most this fraction of its
 #: amplitude: noise of a few per mille passes; a triangle wave leaves 6.6 %, and the
-#: samples of a curve digitized along its length 1.8 % and more (the H and B of the
-#: tanh-shaped loops tried in `tests/test_loop_times.py`'s spirit).
+#: samples of a curve digitized at equal steps of its length 1.8 % and more (the H and B
+#: of tanh-shaped loops, `tests/test_loop_times.py`).
 TOLERANCE = 0.01
 #: Samples of a loop below which no period is estimated.
 MIN_SAMPLES = 16
@@ -80,21 +80,25 @@ def sinusoid_fit(x) -> tuple[float, float]:
     return period, rms / amp if amp > 0 else float("inf")
 
 
-def _loop_period(loop) -> tuple[float, str, float]:
-    """(samples per period, the signal that gave it, its residual) of a loop: the first
-    of `SIGNALS` that is a uniformly sampled sinusoid spanning a period at least, else
-    the best residual found (period nan)."""
-    worst = ("", float("inf"))
+def _loop_period(loop, tolerance: float) -> tuple[float, str, float]:
+    """(samples per period, the signal that gave it, what its sinusoid leaves) of a
+    loop: the first of `SIGNALS` that is a sinusoid sampled uniformly (within
+    ``tolerance``) over a period at least; else (nan, why not in words, inf)."""
+    why = "it has too few samples to tell its sampling"
+    best = float("inf")
     for name in SIGNALS:
         x = getattr(loop, name, None) if name in ("H", "I") else loop.signals.get(name)
         if x is None:
             continue
         period, residual = sinusoid_fit(x)
-        if residual <= TOLERANCE and period <= 1.05 * x.shape[0]:
+        if residual <= tolerance and period <= 1.05 * x.shape[0]:
             return period, name, residual
-        if residual < worst[1]:
-            worst = (name, residual)
-    return float("nan"), *worst
+        if residual <= tolerance:
+            why, best = f"its {name} holds less than one period of its sinusoid", 0.0
+        elif residual < best:
+            why, best = (f"its {name} is not a sinusoid sampled uniformly (what a sinusoid "
+                         f"leaves: {100 * residual:.3g} % of its amplitude)"), residual
+    return float("nan"), why, float("inf")
 
 
 def times_from_frequency(loops, tolerance: float = TOLERANCE):
@@ -105,18 +109,17 @@ def times_from_frequency(loops, tolerance: float = TOLERANCE):
     none is given times. ``text`` says what was done or why not, in one line; None where
     no loop has a frequency without times. The loops are new objects; ``loops`` is not
     changed."""
-    untimed = [lp for lp in loops if lp.t is None and lp.conditions.get("frequency")]
+    untimed = [lp for lp in loops if lp.t is None and
+               np.isfinite(lp.conditions.get("frequency", np.nan)) and
+               lp.conditions["frequency"] > 0]
     if not untimed:
         return list(loops), None
     found = {}
     for lp in untimed:
-        period, name, residual = _loop_period(lp)
-        if not (np.isfinite(period) and residual <= tolerance):
-            what = (f"its {name} is not a sinusoid sampled uniformly (what a sinusoid "
-                    f"leaves: {100 * residual:.3g} % of its amplitude)" if name else
-                    "it has too few samples to tell its sampling")
+        period, name, residual = _loop_period(lp, tolerance)
+        if not np.isfinite(period):
             return list(loops), (
-                f"loop {lp.index} has a frequency and no t column, and {what}: no loop's "
+                f"loop {lp.index} has a frequency and no t column, and {name}: no loop's "
                 "times were taken from its frequency (give a t column, s)")
         found[lp.index] = (period, name, residual)
     out = []

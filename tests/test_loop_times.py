@@ -104,3 +104,12 @@ def test_identify_says_how_the_loops_got_times_only_once_its_input_is_checked(tm
     assert main(["identify", str(path), "--joint", "--vary", "k:pressure"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "--vary 'k:pressure'" in err  # (bad input: one line)
+
+
+def test_half_a_period_is_not_taken_for_a_period():
+    from jaxhyst.io import Loop
+
+    half = Loop(0, None, 120 * np.sin(np.linspace(0, np.pi, 100)), None, {},
+                {"frequency": 50.0})
+    loops, text = jh.times_from_frequency([half])
+    assert loops[0].t is None and "holds less than one period" in text
