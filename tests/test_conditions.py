@@ -360,6 +360,10 @@ def test_loops_at_several_frequencies_fitted_rate_independent_get_a_note(tmp_pat
     loops = read_loops(str(data), None)
     text = rate_note({"data": str(data)}, loops)
     assert "100–1600 Hz" in text and "--losses eddy,excess" in text
+    assert "the file needs times" in text  # (read without them) …
+    from jaxhyst.cli.spec import read_data  # … and with them, from the loops' frequencies
+
+    assert "needs times" not in rate_note({"data": str(data)}, read_data(str(data)))
     assert rate_note({"losses": ["eddy"]}, loops) is None  # (rate dependent)
     assert rate_note({"vary": "k:log_f"}, loops) is None  # (a law in the frequency)
     assert rate_note({}, loops[:1]) is None

@@ -167,12 +167,13 @@ def rate_note(spec, loops, candidates=()) -> str | None:
             any("log_f" in feats for feats in parse_vary(spec.get("vary")).values()):
         return None
     lo, hi = span
+    needs = "" if all(lp.t is not None for lp in loops) else (
+        " (the file needs times: a t column, or loops sampled uniformly from a sinusoid "
+        "with their frequency)")
     return (f"the loops were measured at {lo:.4g}–{hi:.4g} Hz and the model is rate "
             "independent: it draws every frequency alike. --losses eddy,excess,lag,relax adds "
-            "the rate-dependent model (the file needs times: a t column, or loops sampled "
-            "uniformly from a sinusoid with their frequency), --variant "
-            "play+eddy+excess,play+relax compares mechanisms; --vary P:log_f a law in the "
-            "frequency")
+            f"the rate-dependent model{needs}, --variant play+eddy+excess,play+relax "
+            "compares mechanisms; --vary P:log_f a law in the frequency")
 
 
 def check_comparison(spec, loops, forms) -> None:

@@ -239,8 +239,7 @@ def run(args) -> int:
     size = os.path.getsize(spec["data"]) if os.path.isfile(spec["data"]) else 0
     if size > 5e6 and args.progress:  # (a few seconds: say so before)
         note("identify", f"reading {args.data} ({size / 1e6:.0f} MB) …")
-    times = []  # (how the loops got times, if they did: noted once the input is checked)
-    loops = read_data(spec["data"], spec["columns"], said=times)
+    loops = read_data(spec["data"], spec["columns"], said=(times := []))  # (noted below)
     if size > 5e6 and args.progress:
         note("identify", f"read {sum(lp.n_samples for lp in loops)} samples in "
                          f"{len(loops)} loop{'s' if len(loops) > 1 else ''}")
@@ -265,11 +264,9 @@ def run(args) -> int:
     if method not in HYBRID and (args.checkpoint or args.resume):
         raise CLIError(f"--checkpoint/--resume apply to the hybrid GAs; --method {method} is a "
                        "local solve (not checkpointed: rerun it).")
-    for text in times if args.progress else ():
-        note("identify", text)
     rate = rate_note(spec, loops, forms) if args.progress and spec.get("joint") else None
-    if rate:
-        note("identify", rate)
+    for text in filter(None, [*times, rate] if args.progress else ()):  # (input checked)
+        note("identify", text)
     held = curves = result = None
     folds = ()
     if args.leave_one_out:  # (first: with several forms, it chooses the one to fit)
