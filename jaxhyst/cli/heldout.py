@@ -193,7 +193,8 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
         note("leave-one-out", f"{longest} samples in a loop: each loop alone and each fold "
                               f"fitted on one sample in {every}, every error measured on "
                               "all of them; the final fit on all")
-    pad_to, pad_all = comparison_shape(spec, fit_loops), comparison_shape(spec, loops)
+    pad_to = comparison_shape(spec, fit_loops)
+    pad_all = pad_to if every == 1 else comparison_shape(spec, loops)
 
     def on_all(fitted, problem, params, lp):  # (a prediction of all of lp's samples)
         return _predict({**fitted, "pad_to": pad_all}, problem, params, lp)
@@ -264,16 +265,17 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                    "extra_bounds": fitted["extra_bounds"]}
             if not result.success:
                 short.append(f"{form}, fold without loop {held.index}: {result.result}")
-            if i < len(own) and shared and \
-                    row["rms"] < own_rms(own[i], held) * (1.0 - 1e-3):
+            mine = own_rms(own[i], held) if i < len(own) else None  # (one simulation)
+            if mine is not None and shared and row["rms"] < mine * (1.0 - 1e-3):
                 # (the fold, which never saw the loop, predicts it better than its own fit:
                 # the own fit stopped in a higher valley)
                 again = _again(args, own[i], result.params, method, "from the fold's fit",
                                row["rms"], held.index)
                 if again is not own[i]:  # (the fold saw every loop but this one)
                     own[i], seen[i] = again, set(range(len(loops)))
-            if i < len(own):
-                row["own_rms"] = own_rms(own[i], held)
+                    mine = own_rms(own[i], held)
+            if mine is not None:
+                row["own_rms"] = mine
                 row["ratio"] = row["rms"] / max(row["own_rms"], 1e-300)
                 others = [j for j in range(len(own)) if j != i]
                 if others:
