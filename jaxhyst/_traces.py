@@ -37,9 +37,7 @@ import hashlib
 import importlib
 import importlib.util
 import os
-import pickle
 import sys
-import tempfile
 import threading
 import types
 from pathlib import Path
@@ -47,6 +45,8 @@ from pathlib import Path
 import equinox as eqx
 import jax
 import numpy as np
+
+from ._kept_files import dumps, loads, singleton, write
 
 #: Traces kept in memory per function (each a jitted exported call).
 _KEPT = 32
@@ -192,11 +192,10 @@ def _describe(value) -> object:
         return (_named(type(value)), tuple((k, _describe(v)) for k, v in sorted(attrs.items())))
     if isinstance(value, (types.FunctionType, types.BuiltinFunctionType)) or callable(value):
         return _named(value)
-    module = sys.modules.get(type(value).__module__)
-    for name, member in vars(module).items() if module is not None else ():
-        if member is value:  # (a module-level singleton: a sentinel)
-            return ("singleton", type(value).__module__, name)
-    raise _Undescribed(type(value).__name__)
+    found = singleton(value)  # (a module-level singleton: a sentinel, lineax's tags)
+    if found is None:
+        raise _Undescribed(type(value).__name__)
+    return ("singleton", *found)
 
 
 def _structure(treedef) -> object:
@@ -260,8 +259,7 @@ def _load(path: Path):
     """The exported program and output skeleton saved under ``path``; the arrays' weak
     types, which serialization drops, restored (a weakly typed output stays so, and the
     next call's key with it)."""
-    with open(path, "rb") as fh:
-        blob, skeleton, weak_in, weak_out = pickle.load(fh)
+    blob, skeleton, weak_in, weak_out = loads(path.read_bytes())
     exported = jax.export.deserialize(blob)
     return dataclasses.replace(
         exported,
@@ -292,18 +290,16 @@ def _export(fn, is_arr, leaves, treedef, path: Path):
     count = iter(range(len(exported.out_avals)))
     skeleton = jax.tree.unflatten(shapes["def"], [
         _Slot(next(count)) if s is None else s for s in shapes["static"]])
-    data = pickle.dumps((exported.serialize(), skeleton,
-                         [a.weak_type for a in exported.in_avals],
-                         [a.weak_type for a in exported.out_avals]))
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)  # (atomic: processes writing the same key agree)
-    except OSError:  # (a read-only or full disk: kept in memory only)
-        pass
+    data = dumps((exported.serialize(), skeleton, [a.weak_type for a in exported.in_avals],
+                  [a.weak_type for a in exported.out_avals]))
+    if _outline(loads(data)[1]) != _outline(skeleton):  # (an output that loads unequal)
+        raise _Undescribed("the output's structure does not survive pickling")
+    write(path, data)
     return exported, skeleton
+
+
+def _outline(skeleton):
+    return jax.tree.structure(skeleton, is_leaf=lambda s: isinstance(s, _Slot))
 
 
 #: Custom calls of the CPU's LAPACK bindings: their compatibility across jax versions is

@@ -4,14 +4,17 @@ that changes a trace; what it cannot describe, or a damaged file, falls back to 
 
 from __future__ import annotations
 
+import pickle
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import pytest
 
 import jaxhyst as jh
-from jaxhyst import _traces
+from jaxhyst import _kept_files, _traces
 from jaxhyst.identify import _stepped
 from jaxhyst.identify.problem import cost_at
 
@@ -54,6 +57,7 @@ def _fit(problem):
 
 
 @pytest.mark.compat  # (jax.export's serialization and Exported's fields, oldest jax too)
+@pytest.mark.extended  # (three multi-start fits: the same programs traced, loaded, plain)
 def test_a_later_process_loads_a_fits_programs_with_the_same_values(kept, tmp_path,
                                                                     monkeypatch):
     problem = _problem()
@@ -147,3 +151,20 @@ def test_calls_inside_a_trace_are_plain(kept, tmp_path):
     assert _files(tmp_path) == before
     assert np.all(np.isfinite(np.asarray(grad)))
     assert _stepped._advance_batch.__wrapped__.__name__ == "_advance_batch"
+
+
+def test_a_minimisers_state_with_operator_tags_is_loaded_equal_to_the_live_one(kept, tmp_path):
+    """A BFGS state holds its inverse Hessian as a lineax operator whose tags (objects
+    compared by identity) are part of its structure: a kept start loads them as the live
+    tags, so a later process's steps combine with it (they failed with a pytree
+    structure error) and its solve is the first one's."""
+    tags = frozenset({lx.positive_semidefinite_tag})
+    assert _kept_files.loads(_kept_files.dumps(tags)) == tags
+    assert pickle.loads(pickle.dumps(tags)) != tags  # (why the files need it)
+    problem, start = _problem(), jh.TABLE1_TRUE.replace(a=6000.0, k=3800.0, c=0.15)
+    first = jh.solve(problem, start, solver="bfgs", max_steps=3, report=False)
+    assert _files(tmp_path) and not [p for p in _files(tmp_path) if p.suffix == ".not-kept"]
+    _traces.forget()  # (as a new process: the start, steps and end loaded from the files)
+    again = jh.solve(problem, start, solver="bfgs", max_steps=3, report=False)
+    assert again.cost == first.cost and again.steps == first.steps
+    assert np.array_equal(np.asarray(again.values), np.asarray(first.values))
