@@ -262,6 +262,7 @@ def _loop_problem(samples_per_period, noise):
                       output="flux_density", variant=jh.ClassicJA(), substeps=2)
 
 
+@pytest.mark.extended  # (four multi-start fits with profile-checked reports)
 def test_the_profile_refits_compile_meanwhile_once_the_fits_cost_has_settled_inexactly():
     """A multi-start fit with the profile-checked report compiles the check's re-fit
     program in the background thread once its best cost has settled above an exact

@@ -8,10 +8,12 @@ import runpy
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
+@pytest.mark.docs  # (an example of the site: its step, beside the site's build)
 def test_composability_example():
     ns = runpy.run_path(os.path.join(ROOT, "examples", "composability.py"))
     loss, x0, grad = ns["loss"], ns["x0"], np.asarray(ns["grad"])

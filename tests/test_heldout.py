@@ -94,6 +94,7 @@ def test_long_loops_are_compared_on_every_kth_sample_and_measured_on_all(tmp_pat
         assert r["rms"] > floor and r["own_rms"] > floor and r["nearest_rms"] > floor
 
 
+@pytest.mark.extended  # (two leave-one-out runs)
 def test_a_folds_box_does_not_depend_on_the_loop_it_holds_out(tmp_path):
     boxes = []
     for scale in (1.0, 1.5):  # only the held-out loop (the last) differs
@@ -108,6 +109,7 @@ def test_a_folds_box_does_not_depend_on_the_loop_it_holds_out(tmp_path):
     assert boxes[0][0] != boxes[1][0]  # a fold that trains on loop 2 sees it
 
 
+@pytest.mark.extended  # (a leave-one-out run)
 def test_a_fold_that_stops_short_sets_exit_3_and_is_named(tmp_path, capsys):
     """(On loops of unequal lengths: every fit and prediction is padded to the longest,
     here of the other tests' length, so it shares their programs.)"""

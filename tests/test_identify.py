@@ -64,9 +64,10 @@ def test_name_tables_agree():
         assert isinstance(getattr(jh, cls)(), FORM_TYPES)
 
 
-@pytest.mark.parametrize("solver", [  # (the solvers beyond the paper's LM and trust region:
-    # the extended step)
-    pytest.param(s, marks=pytest.mark.extended) if s in ("indirect_lm", "bfgs") else s
+@pytest.mark.parametrize("solver", [  # (the solvers beyond the paper's LMA and TRA and
+    # the default LM: the extended step)
+    pytest.param(s, marks=pytest.mark.extended) if s in ("indirect_lm", "dogleg", "bfgs")
+    else s
     for s in names.SOLVER_NAMES])
 def test_solver_outcome_on_table1(problem, solver):
     res = jh.solve(problem, _start(problem), solver=solver,
