@@ -21,7 +21,11 @@ from __future__ import annotations
 import os
 import stat
 import tempfile
+import threading
 
+#: Held while the umask is read (setting it is the only way to read it): the kept traces
+#: are written from a background thread too (`jaxhyst._kept_files`).
+_UMASK_READ = threading.Lock()
 #: Link targets under these directories are special files (descriptors, terminals,
 #: devices) whatever ``stat`` says of what lies behind them.
 _SPECIAL_ROOTS = ("/dev/", "/proc/")
@@ -69,8 +73,9 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> None:
     try:
         mode = stat.S_IMODE(os.stat(target).st_mode)
     except FileNotFoundError:
-        umask = os.umask(0)
-        os.umask(umask)
+        with _UMASK_READ:  # (read by setting it: one writer thread at a time, or
+            umask = os.umask(0)  # two would leave the process's umask at 0)
+            os.umask(umask)
         mode = 0o666 & ~umask
     directory = os.path.dirname(target)
     os.makedirs(directory, exist_ok=True)

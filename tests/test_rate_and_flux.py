@@ -42,7 +42,7 @@ def test_simulate_flux_unchecked_called_directly_runs_compiled(caplog):
         return jh.simulate_flux_unchecked(SOFT.replace(a=a), drive, losses=LOSSES).cycle_energy
 
     # (a float's conversion to a parameter compiles a program of its own where an earlier
-    # test dropped the compiled programs: `release_if_crowded`; not the simulation's)
+    # test dropped the compiled programs, as test_jax_compat's releases do; not counted)
     SOFT.replace(a=29.0)
     with jax.log_compiles(), caplog.at_level(logging.WARNING):
         first = float(energy(30.0))
