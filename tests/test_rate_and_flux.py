@@ -24,6 +24,13 @@ LOSSES = jh.Losses(eddy=0.05, excess=0.5)
 LAGGED = jh.Losses(eddy=0.05, excess=0.5, lag=1e-4)
 
 
+#: The values of `simulate` and `simulate_flux` without their accuracy checks, which
+#: compile each simulation again (twice the substeps, half the sample step) only to warn:
+#: the checks have tests of their own (the B-driven warning below, test_measured,
+#: test_compiles).
+simulate, simulate_flux = jh.simulate_unchecked, jh.simulate_flux_unchecked
+
+
 def _B(sim):
     return MU0 * (np.asarray(sim.H_hyst) + np.asarray(sim.M))
 
@@ -67,7 +74,7 @@ def test_simulate_flux_unchecked_called_directly_runs_compiled(caplog):
 def test_the_flux_driven_form_agrees_with_an_independent_solve(variant):
     form = jh.EnergyBasedJA() if variant == "energy" else jh.ClassicJA()
     drive = jh.sinusoidal_flux(300.0, 0.35, 0.05, samples_per_period=200)
-    sim = jh.simulate_flux(SOFT, drive, form, losses=LOSSES)
+    sim = simulate_flux(SOFT, drive, form, losses=LOSSES)
     M, H, energy = reference_flux(SOFT, drive.t, drive.B, variant, 0.05, 0.5, drive.run_in,
                                   rtol=1e-13)
     # the documented accuracy at the default setting (2 substeps, 200 samples per period):
@@ -77,7 +84,7 @@ def test_the_flux_driven_form_agrees_with_an_independent_solve(variant):
     assert np.max(np.abs(np.asarray(sim.H) - H)) <= 1e-4 * np.max(np.abs(H))
     assert abs(float(sim.cycle_energy) / energy - 1) <= 1e-6
     # RK4 in B: four substeps more than tenfold better (the error is the scheme's)
-    finer = jh.simulate_flux(SOFT, drive, form, losses=LOSSES, substeps=8)
+    finer = simulate_flux(SOFT, drive, form, losses=LOSSES, substeps=8)
     assert np.max(np.abs(np.asarray(finer.H) - H)) <= 3e-6 * np.max(np.abs(H))
 
 
@@ -88,7 +95,7 @@ def test_the_rate_dependent_form_agrees_with_the_ode_it_discretizes_at_second_or
         drive = jh.sinusoidal_field(300.0, 200.0, 0.0, samples_per_period=spp)
         h, M = reference_dynamic(SOFT, drive.t, drive.H, "energy", 0.05, 0.5,
                                  lag=float(losses.lag))
-        sim = jh.simulate(SOFT, NO_ACTUATOR, drive, losses=losses)
+        sim = simulate(SOFT, NO_ACTUATOR, drive, losses=losses)
         B = MU0 * (h + M)
         errors.append(np.max(np.abs(_B(sim) - B)) / np.max(np.abs(B)))
     assert errors[0] <= 3e-4 and errors[1] <= 7e-5, errors  # (documented: 200 spp)
@@ -97,14 +104,14 @@ def test_the_rate_dependent_form_agrees_with_the_ode_it_discretizes_at_second_or
 
 def test_without_loss_coefficients_both_forms_are_the_static_model():
     drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=100)
-    static = jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive)
-    dynamic = jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive, losses=jh.Losses(0.0, 0.0))
+    static = simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive)
+    dynamic = simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive, losses=jh.Losses(0.0, 0.0))
     for name in ("M", "y", "H_hyst"):
         a, b = np.asarray(getattr(dynamic, name)), np.asarray(getattr(static, name))
         assert np.max(np.abs(a - b)) <= 1e-13 * np.max(np.abs(b)), name
     flux = jh.sinusoidal_flux(50.0, 0.3, 0.0, samples_per_period=100)
-    a = jh.simulate_flux(SOFT, flux, losses=jh.Losses(0.0, 0.0))
-    b = jh.simulate_flux(SOFT, flux)
+    a = simulate_flux(SOFT, flux, losses=jh.Losses(0.0, 0.0))
+    b = simulate_flux(SOFT, flux)
     np.testing.assert_array_equal(np.asarray(a.H), np.asarray(b.H))
 
 

@@ -153,14 +153,19 @@ def test_calls_inside_a_trace_are_plain(kept, tmp_path):
     assert _stepped._advance_batch.__wrapped__.__name__ == "_advance_batch"
 
 
-def test_a_minimisers_state_with_operator_tags_is_loaded_equal_to_the_live_one(kept, tmp_path):
-    """A BFGS state holds its inverse Hessian as a lineax operator whose tags (objects
-    compared by identity) are part of its structure: a kept start loads them as the live
-    tags, so a later process's steps combine with it (they failed with a pytree
-    structure error) and its solve is the first one's."""
+def test_operator_tags_are_loaded_as_the_live_objects():
+    """A lineax operator's tags (objects compared by identity) are part of its structure:
+    the kept files load them as the live tags, which plain pickling does not."""
     tags = frozenset({lx.positive_semidefinite_tag})
     assert _kept_files.loads(_kept_files.dumps(tags)) == tags
     assert pickle.loads(pickle.dumps(tags)) != tags  # (why the files need it)
+
+
+@pytest.mark.extended  # (BFGS, a solver beyond the paper's, is in the extended step too)
+def test_a_minimisers_state_with_operator_tags_is_loaded_equal_to_the_live_one(kept, tmp_path):
+    """A BFGS state holds its inverse Hessian as a lineax operator with tags: a kept
+    start loads them as the live tags, so a later process's steps combine with it (they
+    failed with a pytree structure error) and its solve is the first one's."""
     problem, start = _problem(), jh.TABLE1_TRUE.replace(a=6000.0, k=3800.0, c=0.15)
     first = jh.solve(problem, start, solver="bfgs", max_steps=3, report=False)
     assert _files(tmp_path) and not [p for p in _files(tmp_path) if p.suffix == ".not-kept"]
