@@ -24,6 +24,11 @@ class _Label(str):
         return 0
 
 
+#: The name of the actuator of a material sample (`jaxhyst.identify.joint.NO_ACTUATOR`):
+#: no structure, so its displacement and strain are placeholders.
+MAGNETIZATION_ONLY = "none (magnetization only)"
+
+
 class Actuator(eqx.Module):
     """Geometry and drive constants of a magnetostrictive actuator (all SI).
 
@@ -65,6 +70,13 @@ class Actuator(eqx.Module):
         self.n = None if n is None else jnp.asarray(n, dtype=jnp.float64)
         self.Hb = jnp.asarray(Hb, dtype=jnp.float64)
         self.name = _Label(name)
+
+    @property
+    def magnetization_only(self) -> bool:
+        """Whether this stands for a material sample, not an actuator (its name is
+        `MAGNETIZATION_ONLY`): only the magnetic signals of its simulations mean
+        anything."""
+        return str(self.name) == MAGNETIZATION_ONLY
 
     def to_dict(self) -> dict:
         """Plain ``{Ar, lr, n, Hb, name}`` (floats) of a concrete actuator."""

@@ -153,12 +153,29 @@ def test_simulate_warns_where_its_estimated_error_exceeds_the_documented_accurac
     """Table 1 drive: 20 samples per period are too coarse for 2 substeps (error ~4e-4),
     50 are not (~5e-6, the README's command), whatever the field step rule said."""
     coarse = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=20)
-    with pytest.warns(SamplingWarning, match=r"estimated at 0.000[2-6]"):
+    with pytest.warns(SamplingWarning, match=r"simulation's y is estimated at 0.000[2-6]"):
         jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, coarse)
     fine = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=50)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, fine)
+
+
+def test_a_material_sample_is_checked_on_its_magnetization_alone():
+    """A material sample (`NO_ACTUATOR`: no structure, its y a placeholder) is checked
+    on M only. The pinning cells' M is exact along the drive whatever the substeps, so
+    a record far too coarse for the structure gets no warning (it used to say "the
+    simulation (M, y)" and ask for more substeps, which change nothing in M)."""
+    assert NO_ACTUATOR.magnetization_only and not jh.ACTUATOR1.magnetization_only
+    coarse = jh.sinusoidal_field(100.0, 100.0, 0.0, samples_per_period=20)
+    form, sample = jh.PlayJA(0.8, cells=8), FERRITE.replace(lambda_s=5e-4)  # (as saved)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sim = jh.simulate(sample, NO_ACTUATOR, coarse, form, substeps=1)
+    finer = jh.simulate_unchecked(sample, NO_ACTUATOR, coarse, form, substeps=2)
+    np.testing.assert_allclose(sim.M, finer.M, rtol=0, atol=1e-9 * float(FERRITE.Ms))
+    assert float(np.max(np.abs(np.asarray(sim.y) - np.asarray(finer.y)))) > \
+        1e-5 * float(np.max(np.abs(np.asarray(finer.y))))  # (what used to warn)
 
 
 def _result(outcome="successful", groups=None, at_bound=None):

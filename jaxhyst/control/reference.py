@@ -65,18 +65,20 @@ class Reference(eqx.Module):
         return float(np.ptp(y)) or float(np.max(np.abs(y)))
 
 
-def _as_samples(x, name: str, unit: str) -> np.ndarray:
+def _as_samples(x, name: str, unit: str, per: str = "sample") -> np.ndarray:
+    """``x`` as a 1-D float64 array of finite values, one per ``per`` (a one-line
+    ``ValueError`` naming ``name`` otherwise)."""
     try:
         x = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(f"reference {name} must be numbers ({unit}); got "
                          f"{str(x)[:40]!r}.") from None
     if x.ndim != 1:
-        raise ValueError(f"reference {name} must be 1-D (one value per sample); got shape "
-                         f"{x.shape}.")
+        raise ValueError(f"reference {name} must be a 1-D sequence (one value per {per}); "
+                         f"got shape {x.shape}.")
     bad = np.flatnonzero(~np.isfinite(x))
     if bad.size:
-        raise ValueError(f"reference {name} is NaN or infinite at samples "
+        raise ValueError(f"reference {name} is NaN or infinite at {per}s "
                          f"{bad[:5].tolist()} (of {x.shape[0]}); remove or interpolate them.")
     return x
 
@@ -123,10 +125,12 @@ def multitone_reference(frequency: float, amplitudes: Sequence[float], mean: flo
     """
     f = _check_frequency(frequency)
     N = _check_sampling(samples_per_period)
-    amplitudes = _as_samples(amplitudes, "amplitudes", "m")
+    amplitudes = _as_samples(amplitudes, "amplitudes", "m", per="tone")
     K = amplitudes.shape[0]
-    harmonics = np.arange(1, K + 1) if harmonics is None else np.asarray(harmonics)
-    phases = np.zeros(K) if phases is None else _as_samples(phases, "phases", "rad")
+    harmonics = np.arange(1, K + 1) if harmonics is None else \
+        _as_samples(harmonics, "harmonics", "multiples of the fundamental", per="tone")
+    phases = np.zeros(K) if phases is None else _as_samples(phases, "phases", "rad",
+                                                            per="tone")
     if harmonics.shape != (K,) or phases.shape != (K,):
         raise ValueError(f"give one harmonic and one phase per amplitude ({K}); got "
                          f"{harmonics.shape[0]} harmonics and {phases.shape[0]} phases.")

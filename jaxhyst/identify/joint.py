@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..actuator import Actuator
+from ..actuator import MAGNETIZATION_ONLY, Actuator
 from ..drive import Drive, drive_from_record
 from ..model.paths import split_parameters
 from ..model.simulate import DEFAULT_SUBSTEPS, PAPER_VARIANT, simulate_unchecked
@@ -49,7 +49,7 @@ __all__ = ["JointProblem", "JointSpace", "NO_ACTUATOR", "STRUCTURAL", "fix_struc
 
 # STRUCTURAL (from params): irrelevant, and so fixed, when the observed output is M or B.
 #: The actuator of a magnetization-only problem (its geometry never enters M or B).
-NO_ACTUATOR = Actuator(Ar=1.0, lr=1.0, name="none (magnetization only)")
+NO_ACTUATOR = Actuator(Ar=1.0, lr=1.0, name=MAGNETIZATION_ONLY)
 
 
 def fix_structural(bounds: Bounds, fixed: dict | None = None) -> dict:

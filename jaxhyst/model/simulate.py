@@ -274,10 +274,12 @@ def simulate(
 
     Warns (`jaxhyst.model.accuracy.SamplingWarning`) where the error at this sampling,
     estimated from the same simulation at twice the substeps, exceeds the documented
-    1e-5 of max|y| (or of max|M|): only drives whose field moves more than 1 % of its
-    range per substep are checked (one more simulation; with ``losses`` another at half
-    the sample step). The first of them compiles in a background thread while this
-    one's program compiles, the second after it (`jaxhyst.model.accuracy.checked_meanwhile`).
+    1e-5 of max|y| (or of max|M|; of max|M| alone for a material sample, an actuator
+    that is `Actuator.magnetization_only`), naming the signal: only drives whose field
+    moves more than 1 % of its range per substep are checked (one more simulation;
+    with ``losses`` another at half the sample step). The first of them compiles in a
+    background thread while this one's program compiles, the second after it
+    (`jaxhyst.model.accuracy.checked_meanwhile`).
 
     **Returns:** a `Simulation` with every signal, shape (T,); raises
     ``FloatingPointError`` (naming the first bad sample) if the simulation diverged
@@ -303,22 +305,29 @@ def simulate(
             f"{float(drive.t[i]):g} s, H = {float(drive.H[i]):g} A/m) on; the parameters or "
             "the drive lie outside the model's range. (simulate_unchecked returns the NaN "
             "instead of raising.)")
+    # (a material sample's y is a placeholder: its error is nobody's)
+    signals = ("M",) if actuator.magnetization_only else ("M", "y")
     if fine is not None:  # (at twice the substeps)
-        error = max(richardson_error(sim.observed(name), fine.observed(name))
-                    for name in ("M", "y"))
-        message = sampling_message(error, substeps, "the simulation (M, y)")
+        name, error = _worst(signals, lambda n: richardson_error(sim.observed(n),
+                                                                 fine.observed(n)))
+        message = sampling_message(error, substeps, f"the simulation's {name}")
         if message is not None:
             warnings.warn(message, SamplingWarning, stacklevel=2)
     if finer is not None:  # the field balance: second order in the sample step
-        error = max(step_error(sim.observed(name), finer.observed(name)[..., ::2])
-                    for name in ("M", "y"))
+        name, error = _worst(signals, lambda n: step_error(sim.observed(n),
+                                                           finer.observed(n)[..., ::2]))
         if error > RATE_ACCURACY:
             warnings.warn(f"the sampling is too coarse for the rate-dependent model: the "
-                          f"error of the simulation (M, y) is estimated at {error:.2g} of "
+                          f"error of the simulation's {name} is estimated at {error:.2g} of "
                           f"its size (documented: <= {RATE_ACCURACY:g}); sample the drive "
                           f"at least {int(np.ceil(np.sqrt(error / RATE_ACCURACY) * 1.05))}"
                           "× more finely.", SamplingWarning, stacklevel=2)
     return sim
+
+
+def _worst(signals, error_of) -> tuple[str, float]:
+    """(the signal, its estimated error) of the signal with the largest error."""
+    return max(((name, error_of(name)) for name in signals), key=lambda pair: pair[1])
 
 
 @eqx.filter_jit
