@@ -86,6 +86,17 @@ class Model(eqx.Module):
     law: object = eqx.field(static=True, default=None)
     coefficients: dict | None = None
 
+    def __check_init__(self):
+        for name, value, kind, example in (
+                ("params", self.params, Parameters, "jaxhyst.TABLE1_TRUE"),
+                ("actuator", self.actuator, Actuator, "jaxhyst.ACTUATOR1")):
+            if not isinstance(value, kind):
+                raise TypeError(f"Model's {name} must be a jaxhyst.{kind.__name__} (e.g. "
+                                f"{example}); got {type(value).__name__}.")
+        if self.losses is not None and not isinstance(self.losses, Losses):
+            raise TypeError(f"Model's losses must be a jaxhyst.Losses or None; got "
+                            f"{type(self.losses).__name__}.")
+
     def at(self, frequency: float | None = None, temperature: float | None = None,
            amplitude: float | None = None) -> Model:
         """The model at one condition (frequency in Hz, temperature in °C, amplitude: the

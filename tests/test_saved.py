@@ -64,6 +64,16 @@ def test_bad_model_files_are_refused_in_one_line(tmp_path):
         jh.save_model(path, jh.TABLE1_TRUE)
 
 
+def test_a_model_of_the_wrong_pieces_is_refused_in_one_line():
+    # (a dict of values used to fail later, deep in a simulation, with an AttributeError)
+    with pytest.raises(TypeError, match="Model's params must be a jaxhyst.Parameters"):
+        jh.Model({"a": 7012.0}, jh.ACTUATOR1)
+    with pytest.raises(TypeError, match="Model's actuator must be a jaxhyst.Actuator"):
+        jh.Model(jh.TABLE1_TRUE, "Actuator1")
+    with pytest.raises(TypeError, match="Model's losses must be a jaxhyst.Losses or None"):
+        jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1, losses=(0.05, 0.5))
+
+
 def test_a_model_written_to_a_device_leaves_the_device(tmp_path):
     jh.save_model(os.devnull, jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1))
     assert stat.S_ISCHR(os.stat(os.devnull).st_mode)
