@@ -198,3 +198,40 @@ def test_a_nearest_condition_model_is_saved_and_gives_the_nearest_loops_set(tmp_
                  "2.5"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "picks the nearest of its fitted loops by log_amplitude" in err
+
+
+def test_a_saved_material_model_predicts_a_file_of_fields_or_of_several_signals(tmp_path,
+                                                                                capsys):
+    """``predict MODEL.eqx DATA`` predicts the signal the model was fitted to: compared
+    where the file has it (among others), written without comparison where the file
+    has fields only (both used to stop with advice to pass an --output that predict
+    does not have); a model fitted driven by B is sent to ``simulate`` in one line."""
+    from jaxhyst.cli import main
+    from jaxhyst.identify.joint import NO_ACTUATOR
+
+    material = jh.Model(jh.Parameters(Ms=3.2e5, lambda_s=0.0, a=14.0, k=11.0, alpha=1.2e-5,
+                                      c=0.6, E=1.0, Kz=1.0, Mz=1.0, Cz=0.0), NO_ACTUATOR,
+                        jh.ClassicJA(), 4)
+    H = 60.0 * np.cos(2 * np.pi * np.arange(128) / 128)
+    sim = material.simulate(jh.drive_from_record(None, H, run_in_periods=1))
+    M = np.asarray(sim.M)[sim.run_in:]
+    B = 4e-7 * np.pi * (H + M)
+    model, both, fields = (tmp_path / n for n in ("m.eqx", "both.csv", "fields.csv"))
+    jh.save_model(model, material, output="flux_density")
+    np.savetxt(both, np.c_[H, M, B], delimiter=",", header="H,M,B", comments="")
+    np.savetxt(fields, H[:, None], delimiter=",", header="H", comments="")
+    assert main(["predict", str(model), str(both), "--json"]) == 0
+    row = json.loads(capsys.readouterr().out)["loops"][0]
+    assert row["output"] == "flux_density" and row["rms"] < 1e-6 * np.max(np.abs(B))
+    out = tmp_path / "pred.csv"
+    assert main(["predict", str(model), str(fields), "--out", str(out), "--json"]) == 0
+    row = json.loads(capsys.readouterr().out)["loops"][0]
+    assert row["output"] == "flux_density" and "rms" not in row
+    got = np.genfromtxt(out, delimiter=",", names=True)
+    np.testing.assert_allclose(got["predicted"], B, rtol=0, atol=1e-9)
+    assert np.all(np.isnan(got["data"]))
+    by_B = tmp_path / "b.eqx"
+    jh.save_model(by_B, material, output="field")
+    assert main(["predict", str(by_B), str(both)]) == 2
+    err = capsys.readouterr().err
+    assert "fitted driven by B" in err and "jaxhyst simulate --model" in err

@@ -10,7 +10,6 @@ from .spec import (
     check_outputs,
     loop_drive,
     loop_field,
-    loop_signal,
     print_result,
     read_data,
     select_loops,
@@ -45,6 +44,13 @@ def run_model(args) -> int:
     saved = read_model(args.result)
     meta = read_header(args.result).get("meta", {})
     problem = meta.get("problem")  # (the spec it was fitted with)
+    if meta.get("output") == "field" or (problem or {}).get("driven_by") == "B":
+        raise CLIError(f"{args.result} is a model fitted driven by B (--driven-by B): "
+                       "predict drives each loop by its field; simulate the model driven by "
+                       f"B with 'jaxhyst simulate --model {args.result} --flux-amplitude B "
+                       "--frequency F'.")
+    fitted_column = (problem or {}).get("output") or \
+        {kind: column for column, kind in SIGNAL_OUTPUTS.items()}.get(meta.get("output"))
     law = saved.law.features if saved.law is not None else ()
     for name, feature in (("frequency", "log_f"), ("temperature", "T")):
         if vars(args)[name] is not None and feature not in law:
@@ -57,9 +63,9 @@ def run_model(args) -> int:
     rows, curves, columns = [], [], {k: [] for k in ("loop", "H_A_per_m", "predicted",
                                                     "data", "error")}
     for lp in loops:
-        out = loop_signal(spec, lp, None)
+        out, compared = _observed(spec, lp, fitted_column, args.result)
         kind = output_kind(SIGNAL_OUTPUTS[out])
-        data = np.asarray(lp.signals[out], dtype=np.float64)
+        data = np.asarray(lp.signals[out], dtype=np.float64) if compared else None
         if args.amplitude is not None:  # (its field scaled: nothing measured to compare)
             lp, data = scaled_loop(lp, args.amplitude, saved.actuator, args.data), None
         H = np.asarray(loop_field(lp, saved.actuator, args.data), dtype=np.float64)
@@ -73,9 +79,11 @@ def run_model(args) -> int:
         sim = model.simulate(loop_drive(spec, lp, out, model.actuator))
         pred = np.asarray(kind.of(sim))[sim.run_in:]
         row = {"loop": lp.index, "output": kind.name, "samples": int(pred.shape[0]),
-               **(error_summary(pred, data) if data is not None else {
-                   "not_compared": f"its field scaled to the peak {args.amplitude:g} A/m"}),
                "extrapolation": None}
+        if data is not None:
+            row.update(error_summary(pred, data))
+        elif args.amplitude is not None:
+            row["not_compared"] = f"its field scaled to the peak {args.amplitude:g} A/m"
         if fitted is not None:
             row["extrapolation"], far = outside(spec, lp, saved.actuator, fitted, overrides)
             expect(row, far, expected)
@@ -103,6 +111,22 @@ def run_model(args) -> int:
     text += [f"  wrote {f}" for f in (args.out, args.png) if f]
     print_result(args, {"loops": rows, "out": args.out, "png": args.png}, "\n".join(text))
     return 0
+
+
+def _observed(spec, loop, fitted, model_path: str) -> tuple[str, bool]:
+    """(the signal column the model predicts for ``loop``, whether the loop has it to
+    compare with): the column the model was fitted to (``fitted``, e.g. ``"B"``) where
+    the loop has it or has no signal at all, else the loop's one signal column."""
+    from jaxhyst.io import SIGNAL_OUTPUTS
+
+    signals = [q for q in loop.signals if q in SIGNAL_OUTPUTS]
+    if fitted in SIGNAL_OUTPUTS and (fitted in signals or not signals):
+        return fitted, fitted in signals
+    if len(signals) == 1:
+        return signals[0], True
+    raise CLIError(f"{spec['data']} has signal columns {signals} and the model in "
+                   f"{model_path} was fitted to {fitted or 'none of them'}: keep the one "
+                   "column to compare with in the file.")
 
 
 def _fitted_conditions(path: str, meta: dict, actuator):
