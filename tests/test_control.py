@@ -29,6 +29,7 @@ from jaxhyst.control import (
 from jaxhyst.control.compensate import rms_error
 from jaxhyst.control.learning import DelayError
 from jaxhyst.control.tracking import Tracking, evaluate, settling_periods
+from jaxhyst.identify.joint import NO_ACTUATOR
 from jaxhyst.model.inverse import field_for_magnetization
 
 MODEL = jh.Model(jh.TABLE3[10], jh.ACTUATOR2)  # Actuator2, driven by its AC field (A/m)
@@ -487,6 +488,8 @@ def test_a_reference_beyond_the_stroke_is_reported_with_where():
     (lambda: multitone_reference(100.0, [10e-6], 37e-6, harmonics=["first"]),
      "harmonics must be numbers"),
     (lambda: compensate(jh.TABLE3[10], SINE), "must be a jaxhyst.Model"),
+    (lambda: compensate(jh.Model(jh.TABLE1_TRUE, NO_ACTUATOR), SINE, current_limit=LIMIT),
+     "this model is a material's"),
     (lambda: IterativeLearning.of(MODEL, SINE, current_limit=LIMIT, delay=-1),
      "delay = -1: a known acquisition delay is a whole number of samples"),
     (lambda: IterativeLearning.of(MODEL, SINE, current_limit=LIMIT, delay="sometimes"),

@@ -265,6 +265,12 @@ def _compile_refinement(residuals: TrackingResiduals, z0, max_steps: int):
 
 def _model_of(model) -> Model:
     if isinstance(model, Model):
+        if model.actuator.magnetization_only:
+            raise ValueError("this model is a material's (fitted to M or B, saved without "
+                             "an actuator): it has no structure whose displacement could "
+                             "follow a reference; give it an actuator, e.g. jaxhyst.Model("
+                             "model.params, jaxhyst.ACTUATOR1, model.variant), with the "
+                             "actuator's own magnetostriction and structural parameters.")
         if jnp.ndim(model.params.Ms) != 0:
             raise ValueError("compensate needs one parameter set; this model holds one per "
                              "loop (a joint fit): pick one, e.g. with jaxhyst.Model(params="
