@@ -78,6 +78,10 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     (["simulate", "--flux-amplitude", "0.3", "--amplitude", "1"], 2,
      "drives the material by B"),
     (["simulate", "--eddy", "-1"], 2, "--eddy"),
+    (["simulate", "--cells", "4"], 2, "--cells applies to the forms of pinning cells"),
+    (["simulate", "--params", "table3:800", "--actuator", "actuator2"], 2,
+     "is driven by its field (it has no turns per metre to carry a current): give "
+     "--field-amplitude"),
     (["simulate", "--png", "x.xyz"], 2, "figures are written as"),
     (["compensate", "--current-limit", "2.5", "--gain", "7"], 2, "applies to learning"),
     (["compensate", "--current-limit", "2.5", "--periods", "0"], 2, "--periods"),

@@ -72,6 +72,8 @@ def add_parser(sub) -> None:
                         help=f"RK4 substeps per sample (default {DEFAULT_SUBSTEPS})")
     parser.add_argument("--variant", choices=VARIANTS,
                         help="Jiles–Atherton form (default energy: the paper's)")
+    parser.add_argument("--cells", type=POSITIVE_INT,
+                        help="pinning cells of the forms play and preisach (default 16)")
     parser.add_argument("--csv", help="write the signals here (SI units in the header)")
     parser.add_argument("--png", help="write a figure here (needs matplotlib)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -141,6 +143,10 @@ def _drive_from_args(args, actuator, loop):
                                 samples_per_period=args.samples_per_period)
         return d, (f"H = {args.field_offset:g} + {args.field_amplitude:g} "
                    f"sin(2π·{args.frequency:g} t) A/m")
+    if actuator.n is None:
+        raise CLIError(f"{actuator.name} is driven by its field (it has no turns per metre "
+                       "to carry a current): give --field-amplitude (and --field-offset), "
+                       "A/m, instead of a current.")
     d = jh.sinusoidal_current(args.frequency, args.amplitude, args.offset, actuator,
                               periods=args.periods, samples_per_period=args.samples_per_period)
     return d, f"I = {args.amplitude:.2f} sin(2π·{args.frequency:g} t) + {args.offset:.2f} A"
@@ -186,14 +192,19 @@ def _model(args, record):
     """(params, actuator or None, form, substeps, losses) of the run: from --model (its law
     at the run's conditions: the --drive ``record``'s peak field for an amplitude) or from
     the options."""
+    from jaxhyst.model.play import AbstractPlayForm
+
     if not args.model:
         if args.temperature is not None:
             raise CLIError("--temperature goes with --model (a saved condition law).")
-        return (parameters_arg(args.params or args.preset), None,
-                variant_from_name(args.variant or "energy"),
+        form = variant_from_name(args.variant or "energy", args.cells)
+        if args.cells is not None and not isinstance(form, AbstractPlayForm):
+            raise CLIError(f"--cells applies to the forms of pinning cells (--variant play "
+                           f"or preisach); --variant {args.variant or 'energy'} has none.")
+        return (parameters_arg(args.params or args.preset), None, form,
                 args.substeps or DEFAULT_SUBSTEPS, _losses(args))
-    given = [o for o in ("params", "actuator", "variant", "substeps", "eddy", "excess", "lag",
-                         "relax") if getattr(args, o) is not None]
+    given = [o for o in ("params", "actuator", "variant", "cells", "substeps", "eddy",
+                         "excess", "lag", "relax") if getattr(args, o) is not None]
     if given:
         raise CLIError(f"--model holds the parameters, actuator, form, substeps and losses; "
                        f"leave out --{', --'.join(given)}.")
