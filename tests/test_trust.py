@@ -536,6 +536,10 @@ def test_a_fit_that_is_not_the_minimum_is_named_and_continued_by_the_profile_che
     at_min = identifiability(problem, best.params, profile=True)
     assert not at_min.lower_cost and "NOT THE MINIMUM" not in str(at_min)
     assert profile_likelihood(problem, best.params, "b", n=15).fit_above == 0.0
+    # the fit itself is taken for its parameters (it failed in a jit's hashing before)
+    assert str(identifiability(problem, best, profile=True)) == str(at_min)
+    assert profile_likelihood(problem, best, "b", n=15).interval == \
+        profile_likelihood(problem, best.params, "b", n=15).interval
 
     # a fit that stopped at its step limit keeps its outcome (the user's limit): said only
     kept = attach_report(short, problem, "profile")

@@ -41,7 +41,7 @@ import numpy as np
 from .._traces import kept_jit
 from ..identify.problem import content_digest
 from ..identify.result import bound_status
-from ..identify.summary import free_values_of
+from ..identify.summary import free_values_of, params_of
 from ..params import NAMES
 from .intervals import bound_aware_intervals, box_in_x, x_side
 from .misspecification import misspecification
@@ -144,7 +144,8 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     **Arguments:**
     - ``problem``: any problem of the identification protocol
       (`jaxhyst.identify.AbstractProblem`).
-    - ``params``: the parameter point, usually the fitted one.
+    - ``params``: the parameter point, usually the fitted one (its `Parameters`, or the
+      `IdentificationResult` itself).
     - ``null_tol``: σ/σ₁ below which a direction counts as structurally null.
     - ``max_rel_se``: relative standard error above which an identifiable parameter is
       flagged as poorly determined.
@@ -160,7 +161,7 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     where the model cannot explain the data the report says so and its intervals are
     widened.
     """
-    space = problem.space
+    space, params = problem.space, params_of(params)
     names = tuple(space.names)
     values = np.asarray(free_values_of(space, params), dtype=float)
     width = np.asarray(space.upper) - np.asarray(space.lower)

@@ -31,7 +31,7 @@ from ..identify.problem import cost_at
 from ..identify.result import bound_status, stopped_short
 from ..identify.solvers import make_solver
 from ..identify.space import u_from_z
-from ..identify.summary import free_values_of
+from ..identify.summary import free_values_of, params_of
 from ..progress import progress_meter
 from ..sharding import batch_sharding, place
 from .identifiability import whitened_log_jacobian
@@ -129,7 +129,8 @@ def _crossing(grid, d, i0, direction):
 def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
                        solver: str = "lm", max_steps: int = 100,
                        batch_size: int | None = None, progress=False) -> ProfileLikelihood:
-    """Profile likelihood of parameter ``name`` of ``problem`` around the fit ``params``.
+    """Profile likelihood of parameter ``name`` of ``problem`` around the fit ``params``
+    (its `Parameters`, or the `IdentificationResult` itself).
 
     **Arguments:**
     - ``grid``: values (SI) at which to hold ``name``; default ``n`` points spanning ±4
@@ -142,7 +143,7 @@ def profile_likelihood(problem, params, name: str, grid=None, n: int = 21,
       its ``max_steps``).
     - ``progress``: a progress meter (`jaxhyst.progress`) or True; silent by default.
     """
-    space = problem.space
+    space, params = problem.space, params_of(params)
     if name not in space.names:
         raise ValueError(f"{name!r} is not a free parameter of this problem "
                          f"(free: {list(space.names)}).")
