@@ -540,6 +540,8 @@ def test_a_fit_that_is_not_the_minimum_is_named_and_continued_by_the_profile_che
     assert str(identifiability(problem, best, profile=True)) == str(at_min)
     assert profile_likelihood(problem, best, "b", n=15).interval == \
         profile_likelihood(problem, best.params, "b", n=15).interval
+    assert jh.solve(problem, short, solver="lm", report=False).cost == \
+        jh.solve(problem, short.params, solver="lm", report=False).cost  # (a fit continued)
 
     # a fit that stopped at its step limit keeps its outcome (the user's limit): said only
     kept = attach_report(short, problem, "profile")

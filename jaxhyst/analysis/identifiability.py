@@ -40,8 +40,8 @@ import numpy as np
 
 from .._traces import kept_jit
 from ..identify.problem import content_digest
-from ..identify.result import bound_status
-from ..identify.summary import free_values_of, params_of
+from ..identify.result import bound_status, params_of
+from ..identify.summary import free_values_of
 from ..params import NAMES
 from .intervals import bound_aware_intervals, box_in_x, x_side
 from .misspecification import misspecification

@@ -28,10 +28,10 @@ from .._driver import DONE, KEYBOARD, drive
 from .._interrupt import Interrupted
 from ..identify import outcome_name, solve_traced, start_z
 from ..identify.problem import cost_at
-from ..identify.result import bound_status, stopped_short
+from ..identify.result import bound_status, params_of, stopped_short
 from ..identify.solvers import make_solver
 from ..identify.space import u_from_z
-from ..identify.summary import free_values_of, params_of
+from ..identify.summary import free_values_of
 from ..progress import progress_meter
 from ..sharding import batch_sharding, place
 from .identifiability import whitened_log_jacobian

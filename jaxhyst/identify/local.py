@@ -15,7 +15,7 @@ from .._interrupt import Interrupted
 from ..progress import NoProgressMeter, progress_meter
 from ._stepped import SteppedSolve, best_start
 from .problem import AbstractProblem, check_problem
-from .result import RESULTS, IdentificationResult, member, outcome_name
+from .result import RESULTS, IdentificationResult, member, outcome_name, params_of
 from .solvers import make_solver, solver_name
 from .space import z_from_u
 from .summary import point_of, summarize, with_linearization
@@ -57,7 +57,7 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
     """z0 from parameters of the problem's kind (projected into the box; a batch of them
     gives (K, n)) or from box coordinates u ∈ [0, 1]ⁿ (shape (n,) or (K, n)). For a
     space over a single array, an array is read as box coordinates."""
-    space = problem.space
+    space, start = problem.space, params_of(start)
     tree_kind = not jax.tree_util.treedef_is_leaf(space.treedef)
     if tree_kind and jax.tree.structure(start) == space.treedef:
         leaf, shape = jax.tree.leaves(start)[0], space.shapes[0]
@@ -120,8 +120,9 @@ def solve(problem: AbstractProblem, start, solver="lm", max_steps: int = 200,
           rtol: float = 1e-10, atol: float = 1e-12,
           progress=False) -> IdentificationResult:
     """Run one local solver from ``start``: `Parameters` (SI; the problem's fixed values
-    are kept), a dict {name: SI value}, or box coordinates u, float64 of shape (n,) in
-    [0, 1] (n = ``problem.space.n_free``).
+    are kept), a dict {name: SI value}, an earlier fit (an `IdentificationResult`: its
+    parameters), or box coordinates u, float64 of shape (n,) in [0, 1]
+    (n = ``problem.space.n_free``).
 
     ``solver``: a name of `jaxhyst.identify.SOLVERS` (with termination tolerances
     ``rtol``/``atol``) or any Optimistix least-squares solver or minimiser object.

@@ -345,3 +345,9 @@ class IdentificationResult:
             lines.append(f"Identifiability: not available ({self.report_error})")
         lines += [f"  WARNING: {w}" for w in self.warnings]
         return "\n".join(lines)
+
+
+def params_of(params):
+    """``params`` — or, given a fit (an `IdentificationResult`), its parameters: the
+    solvers' starts and the analyses take either."""
+    return params.params if isinstance(params, IdentificationResult) else params

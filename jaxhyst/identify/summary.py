@@ -48,12 +48,6 @@ def point_of(space, z):
     return space.free_from_u(u_from_z(z)), space.params_from_z(z)
 
 
-def params_of(params):
-    """``params`` — or, given a fit (an `IdentificationResult`), its parameters: the
-    analyses take either."""
-    return params.params if isinstance(params, IdentificationResult) else params
-
-
 @eqx.filter_jit
 def free_values_of(space, params):
     """``space.free_values(params)`` as one compiled program (run op by op on concrete
