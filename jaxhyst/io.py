@@ -1,7 +1,8 @@
 """Files: measured loops in, simulations and results out.
 
 Reading. `read_loops` reads CSV/TSV/semicolon/whitespace-separated text with a header
-(or without, given ``columns``). A header name is a quantity and optionally a unit:
+(or without, given ``columns``; ``-`` there skips a column, e.g. a text column). A header
+name is a quantity and optionally a unit:
 ``H``, ``H [kA/m]``, ``H (A/m)`` or ``H_A_per_m``; units are converted to SI. Several
 loops in one file are told apart by a ``loop`` column. Every problem is reported as a
 `DataError` whose message names the column, row or loop and the fix.
@@ -109,7 +110,8 @@ def parse_column(name: str) -> tuple[str, float]:
     q = _lookup(qname)
     if q is None:
         raise DataError(f"column {raw!r} is not a known quantity; known columns: {_known()} "
-                        "(rename the column, or give the column names with --columns).")
+                        "(rename the column, or name the columns with --columns, '-' for "
+                        "one to skip).")
     _, desc, si, units = QUANTITIES[q]
     if unit is None:
         return q, 1.0
@@ -217,7 +219,8 @@ def read_loops(path, columns: list[str] | str | None = None, *,
                             "--columns 't,H,y' (units in brackets: 'y [um]').")
         columns = first
     body = lines[1:] if has_header else lines
-    parsed = [parse_column(c) for c in columns]
+    kept = [j for j, c in enumerate(columns) if c.strip() != "-"]  # ('-': skipped)
+    parsed = [parse_column(columns[j]) for j in kept]
     names = [q for q, _ in parsed]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -238,7 +241,7 @@ def read_loops(path, columns: list[str] | str | None = None, *,
                     len(cells) == 2 * len(columns) else "")
             raise DataError(f"{path.name} line {lineno}: {len(cells)} values for "
                             f"{len(columns)} columns{hint}.")
-        for c, cell in enumerate(cells):
+        for c, cell in ((c, cells[c]) for c in kept):
             try:
                 v = float(cell)
             except ValueError:
@@ -248,7 +251,7 @@ def read_loops(path, columns: list[str] | str | None = None, *,
                                 f"{cell!r} is not a finite number (NaN, inf, empty or text); "
                                 "remove or repair that row.")
             table[r, c] = v
-    data = {q: table[:, j] * f for j, (q, f) in enumerate(parsed)}
+    data = {q: table[:, j] * f for j, (q, f) in zip(kept, parsed, strict=True)}
     ids = data.pop("loop", np.zeros(len(body)))
     loops = []
     for k in dict.fromkeys(ids.tolist()):  # in order of first appearance

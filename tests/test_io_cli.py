@@ -153,7 +153,7 @@ def _loop_rows(n=20, loops=(0,)):
 
 
 def test_read_loops_units_headers_delimiters_and_loop_column(tmp_path):
-    from jaxhyst.io import read_loops
+    from jaxhyst.io import DataError, read_loops
 
     f = tmp_path / "loops.tsv"
     f.write_text("# measured\nloop\tt [ms]\tH [kA/m]\ty [um]\n"
@@ -171,6 +171,18 @@ def test_read_loops_units_headers_delimiters_and_loop_column(tmp_path):
     g.write_text("".join(f"{t} {h} {y}\n" for _, t, h, y in _loop_rows()))
     (lp,) = read_loops(g, columns="t,H,B (mT)")
     np.testing.assert_allclose(lp.signals["B"][0], 0.5e-3)
+    # columns of no use named '-' (a text column, a sample id): skipped, on either path
+    h = tmp_path / "extra.csv"
+    h.write_text("sample,t,H,material,B\n" + "".join(f"{i},{t},{h},3C90,{y}\n" for i, (
+        _, t, h, y) in enumerate(_loop_rows())))
+    (lp,) = read_loops(h, columns="-,t,H,-,B [mT]")
+    np.testing.assert_allclose(lp.signals["B"], 1e-3 * np.array([y for *_, y in _loop_rows()]))
+    assert list(lp.signals) == ["B"] and lp.n_samples == 20
+    h.write_text(h.read_text().replace(",3C90,", ",7,"))  # (all numbers: the fast path)
+    (fast,) = read_loops(h, columns="-,t,H,-,B [mT]")
+    np.testing.assert_array_equal(fast.signals["B"], lp.signals["B"])
+    with pytest.raises(DataError, match="'-' for one to skip"):
+        read_loops(h)
 
 
 MALFORMED = {

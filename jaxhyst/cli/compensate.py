@@ -67,7 +67,8 @@ def add_parser(sub) -> None:
                         help="the reference file is one period")
     parser.add_argument("--strain", action="store_true",
                         help="the reference (amplitudes, mean, file) is strain, not metres")
-    parser.add_argument("--columns", help="column names of a reference file without a header")
+    parser.add_argument("--columns", help="column names of a reference file without a "
+                        "header (or instead of its header); '-' skips a column")
     parser.add_argument("--current-limit", help="L (|input| <= L) or LO,HI: A of coil "
                         "current, or A/m of AC field for an actuator without turns per metre")
     parser.add_argument("--slew-limit", type=POSITIVE,

@@ -110,8 +110,8 @@ def add_parser(sub) -> None:
                         "magnetization's, an after-effect), e.g. 'eddy,excess' (the file "
                         "needs times; their box is derived from the data's rates unless "
                         "--bounds names it)")
-    parser.add_argument("--columns", help="column names for a file without a header, "
-                        "e.g. 't,H,y [um]'")
+    parser.add_argument("--columns", help="column names for a file without a header (or "
+                        "instead of its header), e.g. 't,H,y [um]'; '-' skips a column")
     parser.add_argument("--actuator", default="actuator1",
                         help="actuator1, actuator2 or a JSON file {Ar, lr, n, Hb}")
     parser.add_argument("--bounds", help="search box: table1, or a JSON file {name: [lower, "

@@ -56,7 +56,8 @@ def add_parser(sub) -> None:
                         "magnetization, s: relax·dM/dt = M_static − M, an after-effect "
                         "(the H-driven rate-dependent model; default 0)")
     parser.add_argument("--drive", help="CSV/TSV with t and H (or I) columns")
-    parser.add_argument("--columns", help="column names for a file without a header")
+    parser.add_argument("--columns", help="column names for a file without a header (or "
+                        "instead of its header); '-' skips a column")
     parser.add_argument("--run-in-periods", type=COUNT, help="with --drive: copies of the "
                         "record simulated before it, for a periodic drive to settle "
                         "(default 1)")
