@@ -240,6 +240,11 @@ class Bounds(eqx.Module):
     upper: Parameters
 
     def __check_init__(self):
+        for which in ("lower", "upper"):
+            if not isinstance(getattr(self, which), Parameters):
+                raise TypeError(f"Bounds' {which} must be a jaxhyst.Parameters (or use "
+                                "Bounds.from_dict({name: (lower, upper)})); got "
+                                f"{type(getattr(self, which)).__name__}.")
         if not is_concrete(self):
             return  # bounds built inside a trace: nothing to inspect
         lo = np.array([np.asarray(getattr(self.lower, n), dtype=np.float64) for n in NAMES])
