@@ -23,6 +23,7 @@ from jaxhyst.identify import (
     u_from_z,
     z_from_u,
 )
+from jaxhyst.identify.local import start_z
 from jaxhyst.identify.solvers import (
     BoxTermination,
     accepted_residuals,
@@ -241,6 +242,12 @@ def test_fixed_parameters_stay_exactly_fixed():
     assert res.cost < 1e-20
     for n in prob.space.names:
         assert abs(float(getattr(res.params, n)) / TRUTH[n] - 1) < 1e-7, n
+    # a start {name: SI value} (as solve's docs say; it was refused as not a Parameters)
+    # is the same start as those values in Parameters; a fixed one given is kept fixed
+    values = {**{n: float(getattr(res.params, n)) for n in prob.space.names}, "Ms": 1e6}
+    assert np.array_equal(start_z(prob, values), start_z(prob, res.params))
+    with pytest.raises(ValueError, match=r"missing: \['Cz'\]"):
+        start_z(prob, {n: v for n, v in values.items() if n != "Cz"})
 
 
 def test_bad_problems_are_refused(problem):

@@ -64,6 +64,8 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
         if jnp.ndim(leaf) > len(shape):
             return jax.vmap(space.z_from_params)(start)
         return space.z_from_params(start)
+    if isinstance(start, dict) and tree_kind and space.treedef.node_data()[0] is not dict:
+        return _z_of_values(space, start)
     try:
         u = jnp.asarray(start, dtype=jnp.float64)
     except (TypeError, ValueError):
@@ -80,6 +82,23 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
             f"box coordinates, one per free parameter: {', '.join(space.names)}); got "
             f"values from {np.nanmin(u_np):.6g} to {np.nanmax(u_np):.6g}{kind}.")
     return _z_from_u_jit(u)
+
+
+def _z_of_values(space, values: dict) -> jax.Array:
+    """z0 from ``{name: SI value}`` giving every free parameter of a space over a
+    Modules' pytree (fixed ones may be named: their fixed values are kept), projected
+    into the box."""
+    unknown = sorted(set(values) - set(space.flat_names) - set(space.names))
+    missing = [n for n in space.names if n not in values]
+    if unknown or missing:
+        raise ValueError(f"a start {{name: value}} gives every free parameter ("
+                         f"{', '.join(space.names)}) in SI units; "
+                         + (f"unknown: {unknown}" if unknown else f"missing: {missing}") + ".")
+    try:
+        x = np.array([float(values[n]) for n in space.names])
+    except (TypeError, ValueError):
+        raise ValueError("a start {name: value} holds numbers (SI units).") from None
+    return _z_from_u_jit(space.u_from_free(x))
 
 
 def _kind(space) -> str:

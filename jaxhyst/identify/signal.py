@@ -196,7 +196,7 @@ def synthetic_problem(params: Parameters, drive: Drive, actuator: Actuator, boun
     their values in ``params`` (or gives ``{name: value}``)."""
     check_parameters(params)
     if fixed is not None and not isinstance(fixed, dict):
-        fixed = {n: float(getattr(params, n)) for n in fixed}
+        fixed = {n: float(getattr(params, n, np.nan)) for n in fixed}  # (unknown: refused)
     space = ParameterSpace(bounds, fixed)
     # compiled as one program (op by op, the first call compiled ~150 small programs)
     sim = simulate(params, actuator, drive, kwargs.get("variant", PAPER_VARIANT),
