@@ -109,6 +109,13 @@ def times_from_frequency(loops, tolerance: float = TOLERANCE):
     none is given times. ``text`` says what was done or why not, in one line; None where
     no loop has a frequency without times. The loops are new objects; ``loops`` is not
     changed."""
+    from .io import Loop
+
+    loops = list(loops) if not isinstance(loops, Loop) else [loops]
+    if not all(isinstance(lp, Loop) for lp in loops):
+        raise TypeError("times_from_frequency takes loops as jaxhyst.io.read_loops gives them "
+                        "(jaxhyst.io.Loop, with a frequency condition); got "
+                        f"{type(next(lp for lp in loops if not isinstance(lp, Loop))).__name__}.")
     untimed = [lp for lp in loops if lp.t is None and
                np.isfinite(lp.conditions.get("frequency", np.nan)) and
                lp.conditions["frequency"] > 0]

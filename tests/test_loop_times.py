@@ -113,3 +113,9 @@ def test_half_a_period_is_not_taken_for_a_period():
                 {"frequency": 50.0})
     loops, text = jh.times_from_frequency([half])
     assert loops[0].t is None and "holds less than one period" in text
+
+
+def test_arrays_instead_of_loops_are_refused_in_one_line():
+    # (a NumPy array used to fail with "'numpy.float64' object has no attribute 't'")
+    with pytest.raises(TypeError, match=r"takes loops as jaxhyst.io.read_loops gives them"):
+        jh.times_from_frequency(np.sin(np.arange(200) * 2 * np.pi / 100))
