@@ -341,6 +341,8 @@ def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
     f.write_text(f.read_text() + "0.0,0.0\n")
     assert main(["report", str(tmp_path / "m.eqx")]) == 2
     assert "changed since" in capsys.readouterr().err
+    assert main(["report", str(out)]) == 2  # (the result file too)
+    assert "changed since" in capsys.readouterr().err
     helps = build_parser()._subparsers._group_actions[0].choices["identify"].format_help()
     assert "3 the fit stopped" in " ".join(helps.split())
 
@@ -443,3 +445,20 @@ def test_a_rate_dependent_fit_is_saved_predicted_and_compensated_from_the_comman
                  str(comp), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["error"] < 1e-4 and summary["error"] < summary["uncompensated_error"] / 100
+
+
+def test_a_result_whose_data_changed_since_the_fit_is_refused(tmp_path):
+    """A result file records its data's SHA-256 (as a saved model does): report and
+    predict refuse a data file changed since the fit in one line (they rebuilt the
+    problem from the new data without a word); a result without it is read as before."""
+    from jaxhyst.cli.models import file_sha256
+    from jaxhyst.cli.problems import load_result
+    from jaxhyst.cli.spec import CLIError
+
+    data, result = tmp_path / "loop.csv", tmp_path / "r.json"
+    data.write_text("H,B\n1,0.1\n")
+    result.write_text(json.dumps({"problem": {"data": "loop.csv"},
+                                  "data_sha256": file_sha256(str(data))}))
+    data.write_text("H,B\n1,0.2\n")
+    with pytest.raises(CLIError, match=r"loop.csv changed since .*r.json was fitted to it"):
+        load_result(result)

@@ -298,6 +298,7 @@ def run(args) -> int:
         result = result.with_outcome("interrupted")
     d = result.to_dict()
     d["problem"] = {**spec, "data": _portable_path(spec["data"], args.out)}
+    d["data_sha256"] = file_sha256(spec["data"])  # (report and predict check it)
     if isinstance(result.params, dict):  # a condition model: every coefficient
         d["coefficients"] = {n: float(v) for n, v in result.params.items()}
     if "history" in result.extra:

@@ -3,6 +3,8 @@ read, and a condition law (an ``identify --vary`` fit) evaluated at the run's co
 
 from __future__ import annotations
 
+import os
+
 from .spec import CLIError, warn
 
 #: A law's feature → (the condition, the option that gives it).
@@ -83,10 +85,17 @@ def fitted_data(path: str, meta: dict):
     if not os.path.isfile(spec["data"]):
         return spec, (f"{path} was fitted to {spec['data']}, which is not there: put the "
                       "data file back beside the model (same relative path).")
-    if meta.get("data_sha256") and file_sha256(spec["data"]) != meta["data_sha256"]:
-        return spec, (f"{spec['data']} changed since {path} was fitted to it (its SHA-256 "
-                      "differs): refit, or restore the file it was fitted to.")
-    return spec, ""
+    return spec, data_changed(spec["data"], meta.get("data_sha256"), path)
+
+
+def data_changed(data: str, sha256: str | None, fitted: str) -> str:
+    """Why the data file ``data`` is not the one ``fitted`` (a result or model file) was
+    fitted to (its SHA-256 differs from ``sha256``), in one line; '' where it is, or
+    where either is unknown."""
+    if not sha256 or not os.path.isfile(data) or file_sha256(data) == sha256:
+        return ""
+    return (f"{data} changed since {fitted} was fitted to it (its SHA-256 differs): refit, "
+            "or restore the file it was fitted to.")
 
 
 def model_at(args, model, path: str, *, frequency=None, temperature=None, amplitude=None,

@@ -16,6 +16,7 @@ from jaxhyst.names import (
     VARIANT_CLASSES,
 )
 
+from .models import data_changed
 from .spec import CLIError, loop_drive, loop_field, loop_signal, read_data
 
 #: Loss coefficients (`jaxhyst.Losses`) and the built-in forms' own parameters: the names
@@ -250,10 +251,9 @@ def model_parameters_from_json(obj: dict, form, what: str):
 
 
 def load_result(path):
-    """(saved JSON, its problem spec with the data path resolved, the rebuilt problem, the
-    fitted parameters) of a result file of ``jaxhyst identify --out``. The parameters are
-    the coefficient dict of a condition model (``--vary``), else the model's parameters
-    (`Parameters`, with `Losses` and the form where the fit had them)."""
+    """(saved JSON, its spec with the data path resolved, the rebuilt problem, the fitted
+    parameters: a condition model's coefficients (``--vary``), else `Parameters` with
+    `Losses` and the form's own) of an ``identify --out`` file; a changed data file refused."""
     import numpy as np
 
     from jaxhyst.io import read_json
@@ -265,6 +265,8 @@ def load_result(path):
     if not os.path.isabs(spec["data"]):  # stored relative to the result file
         spec["data"] = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(path)),
                                                      spec["data"]))
+    if changed := data_changed(spec["data"], saved.get("data_sha256"), path):
+        raise CLIError(changed)
     try:
         problem = build_problem(spec)
     except CLIError as e:  # (an option stored in the file: say which file)
