@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 import jaxhyst as jh
 from jaxhyst.cli import main
+from jaxhyst.identify.joint import NO_ACTUATOR
 from jaxhyst.io import DataError, read_json, read_loops
 
 # -- one table of malformed inputs ----------------------------------------------------------
@@ -203,7 +204,6 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     found = _files(tmp_path_factory.mktemp("malformed"))
-    from jaxhyst.identify.joint import NO_ACTUATOR
 
     found["bh_model"] = found["ok"].parent / "bh.eqx"  # a model of a material alone
     jh.save_model(found["bh_model"], jh.Model(jh.TABLE1_TRUE, NO_ACTUATOR))
@@ -249,6 +249,13 @@ def _api_table(files):
         (lambda: jh.synthetic_problem(jh.TABLE1_TRUE, drive, jh.ACTUATOR1,
                                       jh.TABLE1_BOUNDS, fixed=["Ms", "ms"]), ValueError,
          "Cannot fix unknown parameter(s) ['ms']"),
+        (lambda: jh.JointProblem(B, jh.drive_from_record(None, H), NO_ACTUATOR,
+                                 jh.ParameterSpace.for_loops(jh.TABLE1_BOUNDS, 1),
+                                 output="flux_density"), TypeError,
+         "give the loops' drives as a list"),
+        (lambda: jh.FluxProblem(H, jh.sinusoidal_flux(100.0, 0.3),
+                                jh.ParameterSpace(jh.TABLE1_BOUNDS)), TypeError,
+         "give the records' drives as a list"),
         (lambda: jh.Bounds(jh.TABLE1_TRUE, {"a": 1e4}), TypeError,
          "Bounds' upper must be a jaxhyst.Parameters"),
         (lambda: jh.Model({"a": 7012.0}, jh.ACTUATOR1), TypeError,

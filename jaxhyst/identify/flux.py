@@ -33,6 +33,9 @@ FLUX_OUTPUTS = {"field": "A/m", "cycle_energy": "J/m^3"}
 
 def stack_flux_drives(drives: Sequence[FluxDrive]) -> FluxDrive:
     """One `FluxDrive` with leaves (L, T) from L drives of one length and run-in."""
+    if isinstance(drives, FluxDrive):
+        raise TypeError("give the records' drives as a list, one jaxhyst.FluxDrive per "
+                        "record ([drive] for one), and their data likewise ([H]).")
     drives = list(drives)
     if not drives or not all(isinstance(d, FluxDrive) for d in drives):
         raise TypeError("give a list of jaxhyst.FluxDrive (flux_from_period, "

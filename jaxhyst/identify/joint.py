@@ -164,6 +164,9 @@ class JointProblem(AbstractProblem):
                  variant=PAPER_VARIANT, substeps: int = DEFAULT_SUBSTEPS,
                  shard_loops: bool = False, sigma=None,
                  priors: Sequence[GaussianPrior] = (), pad_to=None):
+        if isinstance(drives, Drive):
+            raise TypeError("give the loops' drives as a list, one jaxhyst.Drive per loop "
+                            "([drive] for one), and their data likewise ([y]).")
         L = len(data)
         outputs = (output,) * L if isinstance(output, str) else tuple(output)
         outputs = tuple(output_kind(o).name for o in outputs)
