@@ -68,16 +68,13 @@ def _field_rate(loops, actuator, source) -> float:
 
 
 def resolve_bounds(spec: dict, given, loops):
-    """The full box of a fit and a line saying where it came from: ``(Bounds, {name:
-    (lower, upper)} of the loss coefficients in ``spec["losses"]`` and the form's own
-    parameters, text)``. For M or B data the box derived from the ``loops``, else the
-    paper's Table 1 box; a bounds file's entries replace the defaults for the parameters
-    it names; a preset is used as is. The loss coefficients' box: [0, 2·Hmax/max|dB/dt|],
-    [0, 2·Hmax/max|dB/dt|^(1/2)] (a loss field up to twice the applied field's amplitude)
-    and, for lag and relax, [0, 2·Hmax/|dH/dt|] (|dH/dt| the applied field's 95th
-    percentile: about a third of a sine's period); they need times and M or B data, or a
-    bounds file naming them; a form's
-    own parameters: its default box."""
+    """``(Bounds, {name: (lower, upper)} of ``spec["losses"]`` and the form's own
+    parameters, a line saying where the box came from)``: for M or B data derived from the
+    ``loops``, else the paper's Table 1 box; a bounds file's entries replace the defaults
+    it names; a preset is used as is. Loss coefficients (they need times, and M or B data
+    or a bounds file): [0, 2·Hmax/max|dB/dt|], [0, 2·Hmax/max|dB/dt|^(1/2)] (a loss field
+    up to twice the applied field's amplitude), lag and relax [0, 2·Hmax/|dH/dt|] (its
+    95th percentile: about a third of a sine's period); a form's own: its default box."""
     import numpy as np
 
     import jaxhyst as jh
@@ -94,12 +91,15 @@ def resolve_bounds(spec: dict, given, loops):
     form = form_from_spec(spec)
     extra = {}
     for n in spec.get("losses") or []:
+        if any(lp.t is None for lp in loops):  # (else each sample would count as 1 s)
+            raise CLIError(f"--losses {n}: the rate-dependent model needs times: give a t "
+                           "column (s), or a frequency column (Hz) of whole periods.")
         if n in given_extra:
             continue
-        if not output_kind(kind).magnetic_only or any(lp.t is None for lp in loops):
+        if not output_kind(kind).magnetic_only:
             raise CLIError(f"--losses {n}: the box of a loss coefficient is derived from M or "
-                           "B data with times (a t column); give it in a bounds file "
-                           f"(--bounds with \"{n}\": [lower, upper], SI).")
+                           f"B data; give it in a bounds file (--bounds, \"{n}\": [lower, "
+                           "upper], SI).")
         Hmax = max(float(np.max(np.abs(loop_field(lp, actuator, spec["data"]))))
                    for lp in loops)
         if n in ("lag", "relax"):
