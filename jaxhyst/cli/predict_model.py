@@ -124,6 +124,9 @@ def _observed(spec, loop, fitted, model_path: str) -> tuple[str, bool]:
         return fitted, fitted in signals
     if len(signals) == 1:
         return signals[0], True
+    if not signals:  # (a model saved from Python does not say what it was fitted to)
+        raise CLIError(f"{spec['data']} has no signal column and {model_path} does not say "
+                       "which signal it predicts: add a column of it (B, M, y …) to the file.")
     raise CLIError(f"{spec['data']} has signal columns {signals} and the model in "
                    f"{model_path} was fitted to {fitted or 'none of them'}: keep the one "
                    "column to compare with in the file.")
