@@ -451,9 +451,8 @@ def test_a_result_whose_data_changed_since_the_fit_is_refused(tmp_path):
     """A result file records its data's SHA-256 (as a saved model does): report and
     predict refuse a data file changed since the fit in one line (they rebuilt the
     problem from the new data without a word); a result without it is read as before."""
-    from jaxhyst.cli.models import file_sha256
     from jaxhyst.cli.problems import load_result
-    from jaxhyst.cli.spec import CLIError
+    from jaxhyst.cli.spec import CLIError, file_sha256
 
     data, result = tmp_path / "loop.csv", tmp_path / "r.json"
     data.write_text("H,B\n1,0.1\n")

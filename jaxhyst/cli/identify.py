@@ -22,7 +22,6 @@ from .candidates import (
 from .fitting import decimated_first, fit_by_options, widen_derived_box
 from .flux_fit import check_flux_options, flux_figure
 from .heldout import held_out_figure, held_out_text, leave_one_out
-from .models import file_sha256
 from .nearest import NEAREST, nearest_fit
 from .options import (
     COUNT,
@@ -41,6 +40,7 @@ from .spec import (
     actuator_arg,
     bounds_arg,
     check_outputs,
+    file_sha256,
     fixed_arg,
     note,
     parameters_arg,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 
-from .spec import CLIError, warn
+from .spec import CLIError, data_changed, warn
 
 #: A law's feature → (the condition, the option that gives it).
 FEATURE_OPTIONS = {"log_f": ("frequency", "--frequency"),
@@ -21,17 +21,6 @@ def read_model(path: str):
         return jh.load_model(path)
     except FileNotFoundError:
         raise CLIError(f"--model {path}: no such file.") from None
-
-
-def file_sha256(path: str) -> str:
-    """The SHA-256 of a data file (a saved model names what it was fitted to)."""
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def is_model_file(path: str) -> bool:
@@ -72,7 +61,6 @@ def fitted_data(path: str, meta: dict):
     """(the problem spec a model file's header ``meta`` names, its data path resolved
     relative to the file at ``path``; '' — or, where that data cannot be used, why, in
     one line: no problem in the header, the file gone, or changed since the fit)."""
-    import os
 
     if "problem" not in meta:
         return None, (f"{path} holds a model without the problem it was fitted to (saved "
@@ -86,16 +74,6 @@ def fitted_data(path: str, meta: dict):
         return spec, (f"{path} was fitted to {spec['data']}, which is not there: put the "
                       "data file back beside the model (same relative path).")
     return spec, data_changed(spec["data"], meta.get("data_sha256"), path)
-
-
-def data_changed(data: str, sha256: str | None, fitted: str) -> str:
-    """Why the data file ``data`` is not the one ``fitted`` (a result or model file) was
-    fitted to (its SHA-256 differs from ``sha256``), in one line; '' where it is, or
-    where either is unknown."""
-    if not sha256 or not os.path.isfile(data) or file_sha256(data) == sha256:
-        return ""
-    return (f"{data} changed since {fitted} was fitted to it (its SHA-256 differs): refit, "
-            "or restore the file it was fitted to.")
 
 
 def model_at(args, model, path: str, *, frequency=None, temperature=None, amplitude=None,

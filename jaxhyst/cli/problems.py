@@ -16,8 +16,7 @@ from jaxhyst.names import (
     VARIANT_CLASSES,
 )
 
-from .models import data_changed
-from .spec import CLIError, loop_drive, loop_field, loop_signal, read_data
+from .spec import CLIError, data_changed, loop_drive, loop_field, loop_signal, read_data
 
 #: Loss coefficients (`jaxhyst.Losses`) and the built-in forms' own parameters: the names
 #: beyond the ten a box, --fix or --vary may give.

@@ -285,3 +285,24 @@ def float_list(text: str, option: str) -> list[float]:
     if not values or not all(math.isfinite(v) for v in values):
         raise CLIError(f"{option} {text!r}: give finite comma-separated numbers.")
     return values
+
+
+def file_sha256(path: str) -> str:
+    """The SHA-256 of a data file (a saved model names what it was fitted to)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def data_changed(data: str, sha256: str | None, fitted: str) -> str:
+    """Why the data file ``data`` is not the one ``fitted`` (a result or model file) was
+    fitted to (its SHA-256 differs from ``sha256``), in one line; '' where it is, or
+    where either is unknown."""
+    if not sha256 or not os.path.isfile(data) or file_sha256(data) == sha256:
+        return ""
+    return (f"{data} changed since {fitted} was fitted to it (its SHA-256 differs): refit, "
+            "or restore the file it was fitted to.")
