@@ -174,7 +174,7 @@ def _model(args):
                            "evaluates a law of the frequency only: save model.at(…) from "
                            "Python (jaxhyst.save_model) first.")
         model = model_at(args, model, args.model, frequency=args.frequency)
-        if str(model.actuator.name).startswith("none"):
+        if model.actuator.magnetization_only:
             raise CLIError(f"--model {args.model}: a model of a material alone (fitted to M or "
                            "B loops) has no actuator to compensate; fit displacement data, or "
                            "give --params and --actuator.")

@@ -13,6 +13,8 @@ from .spec import (
     print_result,
     read_data,
     select_loops,
+    signal_column,
+    signal_columns,
 )
 
 
@@ -49,8 +51,7 @@ def run_model(args) -> int:
                        "predict drives each loop by its field; simulate the model driven by "
                        f"B with 'jaxhyst simulate --model {args.result} --flux-amplitude B "
                        "--frequency F'.")
-    fitted_column = (problem or {}).get("output") or \
-        {kind: column for column, kind in SIGNAL_OUTPUTS.items()}.get(meta.get("output"))
+    fitted_column = (problem or {}).get("output") or signal_column(meta.get("output"))
     law = saved.law.features if saved.law is not None else ()
     for name, feature in (("frequency", "log_f"), ("temperature", "T")):
         if vars(args)[name] is not None and feature not in law:
@@ -119,7 +120,7 @@ def _observed(spec, loop, fitted, model_path: str) -> tuple[str, bool]:
     the loop has it or has no signal at all, else the loop's one signal column."""
     from jaxhyst.io import SIGNAL_OUTPUTS
 
-    signals = [q for q in loop.signals if q in SIGNAL_OUTPUTS]
+    signals = signal_columns(loop)
     if fitted in SIGNAL_OUTPUTS and (fitted in signals or not signals):
         return fitted, fitted in signals
     if len(signals) == 1:

@@ -5,7 +5,7 @@ prediction of each loop and its error."""
 from __future__ import annotations
 
 from .problems import loop_conditions
-from .spec import CLIError, loop_drive, loop_field, read_data
+from .spec import CLIError, loop_drive, loop_field, read_data, signal_column
 
 
 def records_of(problem):
@@ -51,13 +51,12 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     import jaxhyst as jh
     from jaxhyst.identify.joint import common_shape, pad_drive
     from jaxhyst.identify.outputs import output_kind
-    from jaxhyst.io import SIGNAL_OUTPUTS
     from jaxhyst.model.paths import split_parameters
 
     records = records_of(fitted)
     kind = output_kind(records.output if records.output != "mixed" else records.outputs[0])
     actuator = records.actuator
-    name = next((q for q, k in SIGNAL_OUTPUTS.items() if k == kind.name), None)
+    name = signal_column(kind.name)
     drives = [loop_drive(spec, lp, name or "B", actuator, source) for lp in loops]
     pad_to = spec.get("pad_to") or (common_shape(drives) if len(drives) > 1 else None)
     nearest = nearest_of(spec)

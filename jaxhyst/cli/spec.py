@@ -219,10 +219,22 @@ def cli_wording(text: str, args=None) -> str:
     return text
 
 
-def loop_signal(spec, loop, out):
+def signal_columns(loop) -> list[str]:
+    """The loop's columns of an observed signal (y, strain, lambda, M, B)."""
     from jaxhyst.io import SIGNAL_OUTPUTS
 
-    signals = [q for q in loop.signals if q in SIGNAL_OUTPUTS]
+    return [q for q in loop.signals if q in SIGNAL_OUTPUTS]
+
+
+def signal_column(kind: str) -> str | None:
+    """The data column of an output kind (``"flux_density"`` → ``"B"``), or None."""
+    from jaxhyst.io import SIGNAL_OUTPUTS
+
+    return next((q for q, k in SIGNAL_OUTPUTS.items() if k == kind), None)
+
+
+def loop_signal(spec, loop, out):
+    signals = signal_columns(loop)
     if out is None:
         if len(signals) != 1:
             raise CLIError(f"{spec['data']} has signal columns {signals}; choose the observed "

@@ -33,13 +33,11 @@ FLUX_OUTPUTS = {"field": "A/m", "cycle_energy": "J/m^3"}
 
 def stack_flux_drives(drives: Sequence[FluxDrive]) -> FluxDrive:
     """One `FluxDrive` with leaves (L, T) from L drives of one length and run-in."""
-    if isinstance(drives, FluxDrive):
-        raise TypeError("give the records' drives as a list, one jaxhyst.FluxDrive per "
-                        "record ([drive] for one), and their data likewise ([H]).")
-    drives = list(drives)
+    drives = None if isinstance(drives, FluxDrive) else list(drives)
     if not drives or not all(isinstance(d, FluxDrive) for d in drives):
-        raise TypeError("give a list of jaxhyst.FluxDrive (flux_from_period, "
-                        "flux_from_record, sinusoidal_flux …).")
+        raise TypeError("give the records' drives as a list, one jaxhyst.FluxDrive per "
+                        "record ([drive] for one; flux_from_period, flux_from_record, "
+                        "sinusoidal_flux …), and their data likewise ([H]).")
     shapes = {(d.n_samples, d.run_in) for d in drives}
     if len(shapes) != 1:
         raise ValueError(f"the records must have one length and run-in (their (samples, "
