@@ -83,4 +83,7 @@ def __getattr__(name: str):
 
 
 def __dir__():
-    return sorted([*globals(), *__all__, *_SUBMODULES])
+    """The public names once each (loaded or not), the submodules and the dunder names;
+    not this module's own imports (contextlib, importlib, sys) or helpers."""
+    return sorted({*__all__, *_SUBMODULES, "__version__",
+                   *(n for n in globals() if n.startswith("__") and n.endswith("__"))})

@@ -65,6 +65,17 @@ def test_name_tables_agree():
         assert isinstance(getattr(jh, cls)(), FORM_TYPES)
 
 
+def test_dir_lists_each_public_name_once_and_no_imports_of_its_own():
+    """``dir(jaxhyst)`` (tab completion) lists every public name once, loaded or not, and
+    not the package's own imports (it listed contextlib, importlib, sys and two names
+    twice)."""
+    listed = dir(jh)
+    assert len(listed) == len(set(listed))
+    assert set(jh.__all__) <= set(listed) and "simulate" in listed and "io" in listed
+    assert not {"annotations", "contextlib", "importlib", "sys"} & set(listed)
+    assert all(n in jh.__all__ or n.startswith("__") or n in jh._SUBMODULES for n in listed)
+
+
 @pytest.mark.parametrize("solver", [  # (the solvers beyond the paper's LMA and TRA and
     # the default LM: the extended step)
     pytest.param(s, marks=pytest.mark.extended) if s in ("indirect_lm", "dogleg", "bfgs")
