@@ -168,6 +168,8 @@ def run_item(item: dict, out: str) -> dict:
                cost=result.get("cost"))
     report = (result.get("identifiability") or {}).get("parameters", {})
     for name, p in (result.get("params") or {}).items():
+        if p.get("unused"):  # (a material fit's placeholder structure: no column)
+            continue
         row[name] = p["value"] if not isinstance(p["value"], list) else p["value"][0]
         interval = (report.get(name) or {}).get("interval")
         if interval:

@@ -51,6 +51,11 @@ def test_a_serial_batch_records_a_failure_and_a_second_run_skips_what_is_done(tm
         assert s[i]["outcome"] != "failed" and float(s[i]["rms_error"]) < 0.05, s[i]
     # the loops differ (coercivity 9, 10, 11 A/m): each item is its own fit
     assert len({s[i]["k"] for i in ("loop0", "loop1", "loop2")}) == 3
+    # B loops: no columns for the placeholder structure (λs, E, Kz, Mz, Cz), which a
+    # material's fit cannot determine (the result file marks them "unused")
+    with open(tmp_path / "s" / "results.csv", newline="") as fh:
+        header = next(csv.reader(fh))
+    assert "Ms" in header and not {"lambda_s", "E", "Kz", "Mz", "Cz"} & set(header)
     assert s["bad"]["outcome"] == "failed"
     assert "holds no hysteresis loop" in s["bad"]["error"]
     capsys.readouterr()

@@ -278,10 +278,20 @@ class IdentificationResult:
     def _is_free(self, n) -> bool:
         return n in self.free or any(f.startswith(n + "[") for f in self.free)
 
+    def _unused(self) -> set[str]:
+        """The fixed structural parameters of a fit of M or B, which cannot affect it
+        (the placeholder structure of a material's model): not printed, and marked
+        ``"unused": true`` in `to_dict`."""
+        if self.output not in MAGNETIC_OUTPUTS:
+            return set()
+        return {n for n in self._names() if n in STRUCTURAL and not self._is_free(n)}
+
     def to_dict(self) -> dict:
         if self._is_parameters():
             params = {n: {"value": self._value(n), "unit": PARAMETER_UNITS.get(n, ""),
                           "free": self._is_free(n)} for n in self._names()}
+            for n in self._unused():  # (kept: the file rebuilds the whole model)
+                params[n]["unused"] = True
         else:
             params = {n: {"value": v, "free": True}
                       for n, v in zip(self.free, self.values, strict=True)}
@@ -320,10 +330,10 @@ class IdentificationResult:
             for name, g in self.groups.items():
                 lines.append(f"    {name}: rms {g['rms']:.3e} {g['unit']}, "
                              f"max {g['max_abs']:.3e} {g['unit']}")
-        magnetic_only = self.output in MAGNETIC_OUTPUTS
         if self._is_parameters():
+            unused = self._unused()
             for n in self._names():
-                if magnetic_only and n in STRUCTURAL and not self._is_free(n):
+                if n in unused:
                     continue  # cannot affect M or B: not printed
                 mark = "" if self._is_free(n) else "  (fixed)"
                 if n in self.at_bound:
