@@ -126,7 +126,7 @@ def test_loop_problem_from_field_samples_reproduces_a_synthetic_bh_loop():
     p = jh.TABLE1_TRUE
     H = 2e4 * np.cos(2 * np.pi * np.arange(81) / 80)
     drive = jh.drive_from_record(None, H)
-    B = 4e-7 * np.pi * (H + np.asarray(jh.simulate(p, NO_ACTUATOR, drive, substeps=8)
+    B = 4e-7 * np.pi * (H + np.asarray(jh.simulate_unchecked(p, NO_ACTUATOR, drive, substeps=8)
                                        .observed("M")))
     problem = jh.loop_problem(H, B, jh.TABLE1_BOUNDS, output="flux_density",
                               fixed={"Ms": p.Ms}, substeps=8)
@@ -136,7 +136,7 @@ def test_loop_problem_from_field_samples_reproduces_a_synthetic_bh_loop():
     assert float(problem.cost_u(problem.space.u_from_params(off))) > 1e-8
     # a record that starts demagnetized at H = 0 is fitted from its first sample
     H0 = 2e4 * np.sin(2 * np.pi * np.arange(101) / 80)
-    demag = jh.loop_problem(H0, 4e-7 * np.pi * (H0 + np.asarray(jh.simulate(
+    demag = jh.loop_problem(H0, 4e-7 * np.pi * (H0 + np.asarray(jh.simulate_unchecked(
         p, NO_ACTUATOR, jh.Drive(np.arange(101.0), H0), substeps=8).M)), jh.TABLE1_BOUNDS,
         fixed={"Ms": p.Ms}, from_demagnetized=True, substeps=8)
     assert demag.drive.run_in == 0

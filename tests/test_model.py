@@ -30,13 +30,16 @@ def _rel_err(y, y_ref):
 def test_agrees_with_reference(case, references):
     name, p, act, drive = case
     y_ref = references[name]
-    assert _rel_err(jh.simulate(p, act, drive).y, y_ref) <= 1e-5
-    assert _rel_err(jh.simulate(p, act, drive, substeps=FINE_SUBSTEPS).y, y_ref) <= 1e-7
+    # (the simulation unchecked: `simulate` returns its values, test_compiles; its
+    # sampling check has tests of its own and would compile two more programs)
+    assert _rel_err(simulate_unchecked(p, act, drive).y, y_ref) <= 1e-5
+    assert _rel_err(simulate_unchecked(p, act, drive, substeps=FINE_SUBSTEPS).y,
+                    y_ref) <= 1e-7
 
 
 def test_convergence_order(references):
     name, p, act, drive = CASES[0]
-    errs = [_rel_err(jh.simulate(p, act, drive, substeps=s).y, references[name])
+    errs = [_rel_err(simulate_unchecked(p, act, drive, substeps=s).y, references[name])
             for s in (1, 2, 4, 8)]
     orders = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
     # RK4 with the δM switch located: 4th order (measured 4.1, 4.1, 4.0).
@@ -51,7 +54,7 @@ def test_variant_agrees_with_reference_and_its_gradient_with_differences(name):
     _, p, act, drive = CASES[1]  # Actuator2 at 10 Hz: a biased major loop
     variant = VARIANTS[name]
     M_ref, y_ref = reference_simulation(p, act, drive, variant=name)
-    sim = jh.simulate(p, act, drive, variant=variant, substeps=FINE_SUBSTEPS)
+    sim = simulate_unchecked(p, act, drive, variant=variant, substeps=FINE_SUBSTEPS)
     assert _rel_err(sim.y, y_ref) <= 1e-7 and _rel_err(sim.M, M_ref) <= 1e-7
     # d(observed M)/dθ along a direction in the JA parameters vs Richardson differences
     direction = jnp.zeros(10).at[jnp.array([0, 2, 3, 4, 5])].set(
@@ -77,7 +80,7 @@ def test_pop_form_at_c_one_is_the_anhysteretic_curve_with_finite_gradients():
     # H = M = 0 its irreversible term is 0/0 without the guard, poisoning every sample.
     _, p, act, drive = CASES[1]
     x = p.to_array().at[jh.NAMES.index("c")].set(1.0).at[jh.NAMES.index("alpha")].set(0.0)
-    sim = jh.simulate(jh.Parameters.from_array(x), act, drive, variant=jh.PopJA())
+    sim = simulate_unchecked(jh.Parameters.from_array(x), act, drive, variant=jh.PopJA())
     assert bool(sim.finite)
     np.testing.assert_allclose(sim.M, sim.Man, rtol=0, atol=1e-6 * float(jnp.max(sim.Man)))
     g = jax.jit(jax.grad(lambda z: jnp.sum(simulate_unchecked(
@@ -191,7 +194,7 @@ def test_steady_state_loop_closes_and_physics_holds():
     p, act = jh.TABLE1_TRUE, jh.ACTUATOR1
     spp = 200
     drive = jh.sinusoidal_current(100.0, 0.77, 1.53, act, periods=2, samples_per_period=spp)
-    sim = jh.simulate(p, act, drive)
+    sim = simulate_unchecked(p, act, drive)
     y = np.asarray(sim.observed("y"))
     first, second = y[:spp + 1], y[spp:]
     assert np.max(np.abs(first - second)) <= 1e-8 * np.max(np.abs(y))
@@ -221,7 +224,7 @@ def test_frequency_response_matches_simulated_steady_state(f):
     run_in = 30 if f > 100 else 2  # structural transients die out (ζ ≈ 0.27)
     drive = jh.sinusoidal_field(f, 500.0, act.Hb, periods=periods, samples_per_period=spp,
                                 run_in_periods=run_in)
-    sim = jh.simulate(p, act, drive, substeps=4)
+    sim = simulate_unchecked(p, act, drive, substeps=4)
     lam = np.asarray(sim.observed("lam"))[:-1]
     strain = np.asarray(sim.observed("strain"))[:-1]
     # The drive is piecewise linear between samples; the fundamental of that continuous
@@ -280,7 +283,7 @@ def test_nonuniform_time_matches_reference():
     drive = jh.Drive(t, H)
     assert not drive.uniform
     _, y_ref = reference_simulation(jh.TABLE1_TRUE, jh.ACTUATOR1, drive)
-    y = jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive).y
+    y = simulate_unchecked(jh.TABLE1_TRUE, jh.ACTUATOR1, drive).y
     assert _rel_err(y, y_ref) <= 1e-5
 
 
