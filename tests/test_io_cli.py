@@ -35,7 +35,7 @@ def test_cli_simulate_drives_by_flux_density_and_with_losses(tmp_path, capsys):
                  "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     drive = jh.sinusoidal_flux(1000.0, 0.5, samples_per_period=100)
-    sim = jh.simulate_flux(jh.TABLE1_TRUE, drive, losses=jh.Losses(0.05, 0.5))
+    sim = jh.simulate_flux_unchecked(jh.TABLE1_TRUE, drive, losses=jh.Losses(0.05, 0.5))
     assert summary["loss_W_per_m3"] == pytest.approx(float(sim.loss_density(1000.0)),
                                                      rel=1e-12)
     data = np.genfromtxt(csv, delimiter=",", names=True)
@@ -262,8 +262,8 @@ def test_joint_bh_problem_from_a_multi_loop_file(tmp_path):
     rows = ["loop,H [kA/m],B [mT]"]
     for k, amp in enumerate((15e3, 30e3)):
         H = amp * np.cos(2 * np.pi * np.arange(41) / 40)
-        sim = jh.simulate(p, NO_ACTUATOR, jh.drive_from_record(None, H), variant=jh.ClassicJA(),
-                          substeps=4)
+        sim = jh.simulate_unchecked(p, NO_ACTUATOR, jh.drive_from_record(None, H),
+                                    variant=jh.ClassicJA(), substeps=4)
         B = 4e-7 * np.pi * (H + np.asarray(sim.observed("M")))
         rows += [f"{k},{float(h) / 1e3!r},{float(b) * 1e3!r}" for h, b in zip(H, B, strict=True)]
     f = tmp_path / "bh.csv"

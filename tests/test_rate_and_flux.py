@@ -122,8 +122,8 @@ def test_the_loss_per_cycle_grows_with_frequency_as_the_loss_terms_say():
     energies = []
     for f in (10.0, 100.0, 1000.0):
         drive = jh.sinusoidal_flux(f, 0.3, 0.0, samples_per_period=400)
-        W = float(jh.simulate_flux(SOFT, drive, losses=LOSSES).cycle_energy)
-        W0 = float(jh.simulate_flux(SOFT, drive).cycle_energy)
+        W = float(simulate_flux(SOFT, drive, losses=LOSSES).cycle_energy)
+        W0 = float(simulate_flux(SOFT, drive).cycle_energy)
         static = W0 if static is None else static
         assert W0 == pytest.approx(static, rel=1e-9)  # rate independent
         cos32 = np.mean(np.abs(np.cos(2 * np.pi * np.arange(4000) / 4000)) ** 1.5)
@@ -139,9 +139,9 @@ def test_the_loss_per_cycle_grows_with_frequency_as_the_loss_terms_say():
 @pytest.mark.filterwarnings("ignore::jaxhyst.identify.SamplingWarning")  # (the next test's)
 def test_forward_then_inverse_returns_the_drive_and_the_loss(losses):
     drive = jh.sinusoidal_field(300.0, 200.0, 0.0, samples_per_period=400)
-    sim = jh.simulate(SOFT, NO_ACTUATOR, drive, losses=losses)
+    sim = simulate(SOFT, NO_ACTUATOR, drive, losses=losses)
     B = _B(sim)
-    back = jh.simulate_flux(SOFT, jh.FluxDrive(drive.t, B, drive.run_in, True),
+    back = simulate_flux(SOFT, jh.FluxDrive(drive.t, B, drive.run_in, True),
                             losses=losses)
     H = np.asarray(drive.H)
     assert np.max(np.abs(np.asarray(back.H) - H)) <= 1e-2 * np.max(np.abs(H))
@@ -225,7 +225,7 @@ def test_loss_coefficients_are_identified_from_the_energy_per_cycle():
 
     drives = [jh.sinusoidal_flux(f, 0.3, 0.0, samples_per_period=80)
               for f in (20.0, 100.0, 300.0, 1000.0, 3000.0)]
-    energies = [float(jh.simulate_flux(SOFT, d, losses=LOSSES).cycle_energy) for d in drives]
+    energies = [float(simulate_flux(SOFT, d, losses=LOSSES).cycle_energy) for d in drives]
     space = jh.ParameterSpace.with_losses(_soft_box(), {"eddy": (0.0, 0.2),
                                                         "excess": (0.0, 2.0)},
                                           fixed={**FIXED, "a": 30.0, "c": 0.3})

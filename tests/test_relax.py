@@ -47,7 +47,7 @@ def test_the_after_effect_agrees_with_the_ode_it_discretizes_at_second_order(los
         drive = jh.sinusoidal_field(300.0, 200.0, 0.0, samples_per_period=spp)
         h, M = reference_relaxed(SOFT, drive.t, drive.H, float(losses.eddy),
                                  float(losses.excess), float(losses.lag), float(losses.relax))
-        sim = jh.simulate(SOFT, NO_ACTUATOR, drive, losses=losses)
+        sim = jh.simulate_unchecked(SOFT, NO_ACTUATOR, drive, losses=losses)
         B = MU0 * (h + M)
         errors.append(np.max(np.abs(_B(sim) - B)) / np.max(np.abs(B)))
     assert errors[0] <= 4e-4 and errors[1] <= 1e-4, errors
@@ -60,19 +60,19 @@ def test_the_after_effect_is_the_mechanism_it_names():
     areas = []
     for f in (100.0, 1000.0):
         drive = jh.sinusoidal_field(f, 200.0, 0.0, samples_per_period=200)
-        sim = jh.simulate(SOFT, NO_ACTUATOR, drive, losses=RELAXED)
+        sim = jh.simulate_unchecked(SOFT, NO_ACTUATOR, drive, losses=RELAXED)
         H, M = np.asarray(drive.observed(drive.H)), np.asarray(sim.observed("M"))
         peak = int(np.argmax(H))
         assert M[peak + 5] > M[peak]  # (5 samples = 1/40 of a period after the peak)
-        static = np.asarray(jh.simulate(SOFT, NO_ACTUATOR, drive, losses=jh.Losses())
+        static = np.asarray(jh.simulate_unchecked(SOFT, NO_ACTUATOR, drive, losses=jh.Losses())
                             .observed("M"))
         assert static[peak + 5] < static[peak]
         B = MU0 * (np.asarray(sim.observed("H_hyst")) + M)
         areas.append(abs(np.sum(0.5 * (H[1:] + H[:-1]) * np.diff(B))))
     assert areas[1] > 1.5 * areas[0], areas
     drive = jh.sinusoidal_field(300.0, 200.0, 0.0, samples_per_period=200)
-    without = jh.simulate(SOFT, NO_ACTUATOR, drive, losses=jh.Losses(eddy=0.05))
-    tiny = jh.simulate(SOFT, NO_ACTUATOR, drive, losses=jh.Losses(eddy=0.05, relax=1e-12))
+    without = jh.simulate_unchecked(SOFT, NO_ACTUATOR, drive, losses=jh.Losses(eddy=0.05))
+    tiny = jh.simulate_unchecked(SOFT, NO_ACTUATOR, drive, losses=jh.Losses(eddy=0.05, relax=1e-12))
     for name in ("M", "H_hyst"):
         a, b = np.asarray(getattr(tiny, name)), np.asarray(getattr(without, name))
         assert np.max(np.abs(a - b)) <= 1e-7 * np.max(np.abs(b)), name

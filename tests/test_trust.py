@@ -184,7 +184,7 @@ def test_a_derived_box_that_binds_a_condition_fit_is_widened_too(tmp_path, capsy
     for i, amplitude in enumerate((60.0, 100.0, 160.0)):
         H = amplitude * np.cos(2 * np.pi * np.arange(201) / 200)
         drive = jh.drive_from_record(None, H)
-        M = jh.simulate(FERRITE, NO_ACTUATOR, drive, substeps=16).M
+        M = jh.simulate_unchecked(FERRITE, NO_ACTUATOR, drive, substeps=16).M
         B = np.asarray(drive.observed(4e-7 * np.pi * (drive.H + M)))
         rows += [(i, h, b) for h, b in zip(H[:-1], B[:-1], strict=True)]
     path = tmp_path / "loops.csv"
@@ -430,7 +430,7 @@ def test_a_model_that_cannot_explain_its_data_is_named_and_its_intervals_widened
     right = jh.solve(right_problem, jh.TABLE1_TRUE, report=False)
     fine = identifiability(right_problem, right.params, profile=False)
     assert fine.misspecified is None and "MISSPECIFIED" not in str(fine)
-    play = jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive, jh.PlayJA(1.0))
+    play = jh.simulate_unchecked(jh.TABLE1_TRUE, jh.ACTUATOR1, drive, jh.PlayJA(1.0))
     data = np.asarray(drive.observed(play.y)) + noise
     wrong = eqx.tree_at(lambda q: q.data, problem, jnp.asarray(data))
     fit = jh.solve(wrong, jh.TABLE1_TRUE, report=False)
