@@ -187,7 +187,7 @@ def read_loops(path, columns: list[str] | str | None = None, *,
     path = Path(path)
     if path.is_dir():
         raise DataError(f"data file {str(path)!r} is a directory; give the file inside it.")
-    if not path.is_file():
+    if not path.exists():  # (a pipe, e.g. bash's <(…), is read like a file)
         raise DataError(f"data file {str(path)!r} does not exist.")
     raw = path.read_bytes()
     if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):  # UTF-16 with its byte-order mark
@@ -336,7 +336,9 @@ def json_safe(obj):
 
 def read_json(path) -> dict:
     path = Path(path)
-    if not path.is_file():
+    if path.is_dir():
+        raise DataError(f"{str(path)!r} is a directory; give the JSON file inside it.")
+    if not path.exists():
         raise DataError(f"file {str(path)!r} does not exist.")
     try:
         obj = json.loads(path.read_text(encoding="utf-8"))

@@ -185,6 +185,29 @@ def test_read_loops_units_headers_delimiters_and_loop_column(tmp_path):
         read_loops(h)
 
 
+
+def test_a_pipe_is_read_like_a_file_and_a_device_is_not_called_missing(tmp_path):
+    """bash's ``<(…)`` hands a pipe (/dev/fd/N): it is read like a file; /dev/null is
+    empty, not "does not exist"; a directory given as a result file is named so."""
+    import threading
+
+    from jaxhyst.io import DataError, read_json, read_loops
+
+    fifo = tmp_path / "loops.fifo"
+    os.mkfifo(fifo)
+    text = "t,H,y\n" + "".join(f"{t},{h},{y}\n" for _, t, h, y in _loop_rows())
+    writer = threading.Thread(target=fifo.write_text, args=(text,), daemon=True)
+    writer.start()
+    (lp,) = read_loops(fifo)
+    writer.join()
+    assert lp.n_samples == 20
+    with pytest.raises(DataError, match="is empty"):
+        read_loops("/dev/null")
+    with pytest.raises(DataError, match="is a directory"):
+        read_json(tmp_path)
+    with pytest.raises(DataError, match="does not exist"):
+        read_json(tmp_path / "nowhere.json")
+
 MALFORMED = {
     "nan": ("t_s,H_A_per_m,y_m\n" + "".join(f"{t},{h},{'nan' if i == 7 else y}\n" for i, (
         _, t, h, y) in enumerate(_loop_rows())), "line 9, column 'y_m'"),
