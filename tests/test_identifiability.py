@@ -115,6 +115,7 @@ def replicates():
     return problem, data, fits
 
 
+@pytest.mark.extended  # (a replicate study: 120 noisy fits; with the next test ~30 s)
 def test_95_percent_intervals_cover_the_truth_in_95_percent_of_noisy_replicates(replicates):
     problem, _, fits = replicates
     truth = np.asarray(problem.space.free_values(jh.TABLE1_TRUE))
@@ -129,6 +130,7 @@ def test_95_percent_intervals_cover_the_truth_in_95_percent_of_noisy_replicates(
     assert ok.all() and np.all(np.isfinite(fits["cost"]))
 
 
+@pytest.mark.extended  # (on the replicate study's fits)
 def test_profile_likelihood_agrees_with_the_linear_interval_and_flags_flat_profiles(replicates):
     problem, data, fits = replicates
     one = eqx.tree_at(lambda q: q.data, problem, jnp.asarray(data[0]))

@@ -92,6 +92,7 @@ def test_default_bounds_follow_the_data_and_a_bounds_dict_changes_only_its_names
         merge_bounds(box, {"kk": (1.0, 2.0)})
 
 
+@pytest.mark.extended  # (end to end: two digitized loops fitted with the defaults)
 def test_digitized_loops_are_identified_without_options_within_their_intervals():
     """Must-show of issue 15: a synthetic ferrite-like loop, noisy and resampled like a
     digitized curve, fitted with every default (data-derived box, 2 substeps, monotone

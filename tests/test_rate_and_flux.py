@@ -262,6 +262,7 @@ def test_the_rate_dependent_model_is_identified_from_an_h_driven_loop():
     assert float(model.losses.eddy) == pytest.approx(0.05, rel=1e-6)
 
 
+@pytest.mark.extended  # (end to end: a B-driven fit by the command line, saved, reloaded)
 def test_a_b_driven_fit_from_the_command_line_saves_a_model_driven_by_b(tmp_path, capsys):
     """``identify --driven-by B``: a file's B(t) drives the model and H is fitted (the
     parameters that made it come back); the saved model, a material without actuator, is
