@@ -185,10 +185,9 @@ def read_loops(path, columns: list[str] | str | None = None, *,
     loop, a file with neither H nor I (where ``drive``).
     """
     path = Path(path)
-    if path.is_dir():
-        raise DataError(f"data file {str(path)!r} is a directory; give the file inside it.")
-    if not path.exists():  # (a pipe, e.g. bash's <(…), is read like a file)
-        raise DataError(f"data file {str(path)!r} does not exist.")
+    if path.is_dir() or not path.exists():  # (a pipe, e.g. bash's <(…), is read as a file)
+        raise DataError(f"data file {str(path)!r} " + ("is a directory; give the file inside "
+                        "it." if path.is_dir() else "does not exist."))
     raw = path.read_bytes()
     if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):  # UTF-16 with its byte-order mark
         try:
@@ -336,10 +335,9 @@ def json_safe(obj):
 
 def read_json(path) -> dict:
     path = Path(path)
-    if path.is_dir():
-        raise DataError(f"{str(path)!r} is a directory; give the JSON file inside it.")
-    if not path.exists():
-        raise DataError(f"file {str(path)!r} does not exist.")
+    if path.is_dir() or not path.exists():
+        raise DataError(f"{str(path)!r} is a directory; give the JSON file inside it."
+                        if path.is_dir() else f"file {str(path)!r} does not exist.")
     try:
         obj = json.loads(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
