@@ -52,6 +52,9 @@ class Drive(eqx.Module):
       by waiting: `jaxhyst.model.structure.periodic_structural_response`); the
       magnetization still starts demagnetized and needs its run-in (a ramp and one or two
       periods settle it). Default False: everything starts at rest at the first sample.
+    - ``timed``: whether ``t`` is real time (s). False for a rate-independent record given
+      without times (`drive_from_record` with ``t=None``, which counts samples): the
+      rate-dependent terms (`jaxhyst.Losses`) refuse such a drive (`require_times`).
 
     ``t`` and ``H`` are data: a new frequency, amplitude or jitter in ``t`` does not
     recompile a jitted simulation, and drives of equal length stack for ``vmap``. Only
@@ -65,9 +68,10 @@ class Drive(eqx.Module):
     run_in: int = eqx.field(static=True, default=0)
     uniform: bool = eqx.field(static=True, default=False)
     periodic: bool = eqx.field(static=True, default=False)
+    timed: bool = eqx.field(static=True, default=True)
 
     def __init__(self, t, H, run_in: int = 0, uniform: bool | None = None,
-                 periodic: bool = False):
+                 periodic: bool = False, timed: bool = True):
         # inspect the values as given: inside a trace jnp.asarray turns even a NumPy
         # array into a tracer, and a drive built there from concrete times would lose
         # its uniform sampling (and its checks)
@@ -134,6 +138,7 @@ class Drive(eqx.Module):
         self.run_in = run_in
         self.uniform = bool(uniform)
         self.periodic = bool(periodic)
+        self.timed = bool(timed)
 
     @property
     def n_samples(self) -> int:
@@ -187,7 +192,8 @@ def _field_from_current(n, Hb, current):
 def drive_from_record(t: Float[ArrayLike, " T"] | None, H: Float[ArrayLike, " T"], *,
                       run_in_periods: int = 1, ramp_fraction: float = 0.25) -> Drive:
     """A `Drive` whose observed part is a measured record H(t) (A/m; t in s, or ``None``
-    for a rate-independent B–H loop given as field samples only).
+    for a rate-independent B–H loop given as field samples only: its steps then count
+    samples, ``Drive.timed`` is False, and the rate-dependent model refuses it).
 
     The record should span a whole number of periods of a periodic drive (a closed loop).
     In front of it, as run-in: a linear ramp from H = 0 to H[0] lasting ``ramp_fraction``
@@ -204,7 +210,8 @@ def drive_from_record(t: Float[ArrayLike, " T"] | None, H: Float[ArrayLike, " T"
         raise ValueError(f"The field record contains NaN or inf at samples {bad}.")
     _check_field_range(H, "The field record", "check its unit (A/m) and the column it "
                        "was read from")
-    if t is None:
+    timed = t is not None
+    if not timed:
         t = np.arange(H.shape[0], dtype=np.float64)  # rate-independent: any time scale
     t = np.asarray(t, dtype=np.float64)
     if t.shape != H.shape:
@@ -225,7 +232,27 @@ def drive_from_record(t: Float[ArrayLike, " T"] | None, H: Float[ArrayLike, " T"
     n_pre = Hpre.shape[0]
     t_all = np.concatenate([t[0] + dt * np.arange(-n_pre, 0), t])
     H_all = np.concatenate([Hpre, H])
-    return Drive(t_all, H_all, run_in=n_pre)
+    return Drive(t_all, H_all, run_in=n_pre, timed=timed)
+
+
+def require_times_for(space, drives) -> None:
+    """`require_times` for each of ``drives`` where the parameter space ``space`` holds
+    loss coefficients (`jaxhyst.ParameterSpace.with_losses`: the rate-dependent model)."""
+    from .model.losses import LOSS_NAMES
+
+    if any(name.split("[")[0] in LOSS_NAMES for name in space.flat_names):
+        for drive in drives:
+            require_times(drive, "loss coefficients (a space with losses)")
+
+
+def require_times(drive, what: str = "losses") -> None:
+    """Refuse rate-dependent terms (``what``) on a drive built without times
+    (``drive.timed`` False: its steps count samples, so a rate dB/dt means nothing)."""
+    if not getattr(drive, "timed", True):
+        raise ValueError(f"{what} need the record's times: this drive was built without "
+                         "them (drive_from_record(None, …) counts samples, not seconds), so "
+                         "its rates mean nothing; give the times in s, e.g. "
+                         "drive_from_record(t, H).")
 
 
 def _check_field_range(H, what: str, fix: str = "check its unit (A/m)") -> None:

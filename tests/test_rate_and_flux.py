@@ -348,3 +348,42 @@ def test_a_time_constant_is_identified_from_the_command_line(tmp_path, capsys, n
     fit = json.loads(capsys.readouterr().out)
     assert fit["params"][name]["value"] == pytest.approx(value, rel=1e-4)
     assert float(getattr(jh.load_model(model).losses, name)) == pytest.approx(value, rel=1e-4)
+
+
+def test_losses_refuse_a_record_given_without_times_in_every_entry_point():
+    """drive_from_record(None, H) counts samples, not seconds (a rate-independent B–H
+    loop): a rate-dependent term on it would be computed with 1 s steps and be silently
+    wrong, so every entry point that takes losses refuses it in one line, while the
+    rate-independent model runs on it as before and padding keeps the mark."""
+    from jaxhyst.identify.joint import pad_drives
+
+    phase = np.linspace(0.0, 2.0 * np.pi, 41)
+    H, B = 80.0 * np.sin(phase), 0.3 * np.sin(phase)
+    untimed, timed = jh.drive_from_record(None, H), jh.drive_from_record(phase / 300.0, H)
+    assert not untimed.timed and timed.timed
+    flux = jh.flux_from_record(None, B)
+    assert not flux.timed and jh.flux_from_record(phase / 300.0, B).timed
+    losses = jh.Losses(eddy=1e-3)
+    with_losses = jh.ParameterSpace.with_losses(jh.TABLE1_BOUNDS, {"eddy": (0.0, 1e-2)})
+    joint_losses = jh.ParameterSpace.for_model(jh.TABLE1_BOUNDS, losses={"eddy": (0.0, 1e-2)},
+                                               n_loops=2)
+    refused = [
+        lambda: jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, untimed, losses=losses),
+        lambda: jh.simulate_unchecked(jh.TABLE1_TRUE, jh.ACTUATOR1, untimed, losses=losses),
+        lambda: jh.simulate_flux(jh.TABLE1_TRUE, flux, losses=losses),
+        lambda: jh.simulate_flux_unchecked(jh.TABLE1_TRUE, flux, losses=losses),
+        lambda: jh.Problem(np.zeros(untimed.n_observed), untimed, jh.ACTUATOR1, with_losses),
+        lambda: jh.JointProblem([np.zeros(timed.n_observed), np.zeros(untimed.n_observed)],
+                                [timed, untimed], jh.ACTUATOR1, joint_losses),
+        lambda: jh.FluxProblem(np.ones((1, flux.n_observed)), [flux], with_losses),
+    ]
+    for call in refused:
+        with pytest.raises(ValueError, match="need the record's times") as err:
+            call()
+        assert "\n" not in str(err.value) and "drive_from_record(t, H)" in str(err.value)
+    # (the rate-independent model: untimed as before; a joint problem pads and keeps it)
+    assert np.all(np.isfinite(jh.simulate_unchecked(jh.TABLE1_TRUE, jh.ACTUATOR1, untimed).y))
+    padded, _ = pad_drives([untimed, jh.drive_from_record(None, H[:-8])])
+    assert not padded.timed
+    mixed, _ = pad_drives([untimed, timed])
+    assert not mixed.timed

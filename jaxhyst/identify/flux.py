@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..drive import require_times_for
 from ..model.flux import FluxDrive, simulate_flux_unchecked
 from ..model.jiles_atherton import PAPER_VARIANT
 from ..model.paths import split_parameters
@@ -85,6 +86,7 @@ class FluxProblem(AbstractProblem):
         if not isinstance(space, ParameterSpace):
             raise TypeError("space must be a jaxhyst.ParameterSpace.")
         drive = stack_flux_drives(drives)
+        require_times_for(space, [drive])
         L, n_obs = len(drives), drive.n_observed
         data = np.asarray(data, dtype=np.float64)
         want = (L, n_obs) if output == "field" else (L,)

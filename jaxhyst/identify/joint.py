@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..actuator import MAGNETIZATION_ONLY, Actuator
-from ..drive import Drive, drive_from_record
+from ..drive import Drive, drive_from_record, require_times_for
 from ..model.paths import split_parameters
 from ..model.simulate import DEFAULT_SUBSTEPS, PAPER_VARIANT, simulate_unchecked
 from ..params import STRUCTURAL, Bounds
@@ -94,7 +94,7 @@ def pad_drive(drive: Drive, pad_to) -> Drive:
         t, H = _padded_samples(drive, run_in, n_observed)
     except ValueError:
         return drive
-    return Drive(t, H, run_in=run_in, uniform=drive.uniform)
+    return Drive(t, H, run_in=run_in, uniform=drive.uniform, timed=drive.timed)
 
 
 def pad_drives(drives: Sequence[Drive], pad_to=None):
@@ -114,8 +114,9 @@ def pad_drives(drives: Sequence[Drive], pad_to=None):
         Hs.append(H)
         mask[i, : d.n_observed] = True
     # each loop keeps its own time step (t is data); the batch is uniform if every loop is
-    uniform = all(d.uniform for d in drives)
-    batched = [Drive(t, H, run_in=R, uniform=uniform) for t, H in zip(ts, Hs, strict=True)]
+    uniform, timed = all(d.uniform for d in drives), all(d.timed for d in drives)
+    batched = [Drive(t, H, run_in=R, uniform=uniform, timed=timed)
+               for t, H in zip(ts, Hs, strict=True)]
     drive = jax.tree.map(lambda *xs: jnp.stack(xs), *batched)
     return drive, mask
 
@@ -176,6 +177,7 @@ class JointProblem(AbstractProblem):
             raise ValueError(f"{L} data sets, {len(drives)} drives and a space for "
                              f"{space.n_loops} loops: give one drive per loop (and a "
                              "space from ParameterSpace.for_loops).")
+        require_times_for(space, drives)
         sigmas = (sigma,) * L if sigma is None or np.ndim(sigma) == 0 else tuple(sigma)
         if len(sigmas) != L:
             raise ValueError(f"{len(sigmas)} noise levels for {L} loops.")
@@ -367,7 +369,7 @@ def loop_problem(H, data, bounds: Bounds | dict | None = None, *,
         if abs(H[0]) > 1e-12 * max(np.max(np.abs(H)), 1.0):
             raise ValueError("from_demagnetized=True needs the record to start at H = 0.")
         tt = np.arange(H.shape[0], dtype=float) if t is None else np.asarray(t, float)
-        drive = Drive(tt, H_model)
+        drive = Drive(tt, H_model, timed=t is not None)
     else:
         drive = drive_from_record(t, H_model, run_in_periods=run_in_periods)
     return Problem(data, drive, NO_ACTUATOR,

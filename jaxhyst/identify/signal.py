@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..actuator import Actuator
-from ..drive import Drive
+from ..drive import Drive, require_times_for
 from ..model.accuracy import may_be_coarse, richardson_error
 from ..model.paths import split_parameters
 from ..model.simulate import (
@@ -85,6 +85,7 @@ class Problem(AbstractProblem):
             raise TypeError(f"drive must be a jaxhyst.Drive; got {type(drive).__name__}.")
         if not isinstance(space, ParameterSpace):
             raise TypeError("space must be a jaxhyst.ParameterSpace (bounds + fixed values).")
+        require_times_for(space, [drive])
         data = np.asarray(data, dtype=np.float64)
         if data.ndim != 1:
             raise ValueError(f"data must be 1-D (one observed signal); got shape {data.shape}.")

@@ -44,7 +44,7 @@ import numpy as np
 
 from .._traces import kept_jit
 from .._typing import Array, Float, Signal
-from ..drive import UNIFORM_TOLERANCE, Drive
+from ..drive import UNIFORM_TOLERANCE, Drive, require_times
 from ..names import DEFAULT_SUBSTEPS
 from ..params import MU0, Parameters, check_parameters, is_concrete, physically_valid
 from .accuracy import (
@@ -81,8 +81,10 @@ class FluxDrive(eqx.Module):
     B: Signal
     run_in: int = eqx.field(static=True, default=0)
     uniform: bool = eqx.field(static=True, default=False)
+    timed: bool = eqx.field(static=True, default=True)  # (`jaxhyst.Drive.timed`)
 
-    def __init__(self, t, B, run_in: int = 0, uniform: bool | None = None):
+    def __init__(self, t, B, run_in: int = 0, uniform: bool | None = None,
+                 timed: bool = True):
         if is_concrete(B) and np.ndim(B) == 1 and np.all(np.isfinite(np.asarray(B))) and \
                 np.max(np.abs(np.asarray(B))) > MAX_FLUX_DENSITY:
             i = int(np.argmax(np.abs(np.asarray(B)) > MAX_FLUX_DENSITY))
@@ -90,7 +92,7 @@ class FluxDrive(eqx.Module):
                              f"{MAX_FLUX_DENSITY:g} T; check its unit (T) and column.")
         checked = Drive(t, B, run_in, uniform)  # (the same checks of t, lengths, run-in)
         self.t, self.B = checked.t, checked.H
-        self.run_in, self.uniform = checked.run_in, checked.uniform
+        self.run_in, self.uniform, self.timed = checked.run_in, checked.uniform, bool(timed)
 
     @property
     def n_samples(self) -> int:
@@ -107,7 +109,7 @@ class FluxDrive(eqx.Module):
     @classmethod
     def of(cls, drive: Drive) -> FluxDrive:
         """The flux drive with the samples of ``drive`` read as B (T)."""
-        return cls(drive.t, drive.H, drive.run_in, drive.uniform)
+        return cls(drive.t, drive.H, drive.run_in, drive.uniform, drive.timed)
 
 
 class FluxSimulation(eqx.Module):
@@ -179,6 +181,8 @@ def simulate_flux_unchecked(params: Parameters, drive: FluxDrive,
     directly) it runs as one compiled program, like `simulate_flux`; inside a jit trace it
     is traced into your program (as `jaxhyst.simulate_unchecked` does)."""
     substeps, losses = _arguments(substeps, losses, "simulate_flux_unchecked")
+    if losses is not None:
+        require_times(drive)
     if after_effect is None:
         after_effect = _relaxes(losses)
     if _outside_jit((params, drive, losses)):
@@ -275,6 +279,8 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
                         f"{variant!r}.")
     if losses is not None and not isinstance(losses, Losses):
         raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess, lag, relax); got {losses!r}.")
+    if losses is not None:
+        require_times(drive)
     if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
         raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
     if jnp.ndim(drive.B) != 1:
@@ -295,7 +301,7 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
         lambda: _simulate_flux_jit(params, drive, variant, substeps, losses, after_effect),
         lambda sim: np.isfinite(np.asarray(sim.H)),
         drive, np.asarray(drive.observed(drive.B)), substeps, losses,
-        lambda t2, B2, run_in2: FluxDrive(t2, B2, run_in2, drive.uniform))
+        lambda t2, B2, run_in2: FluxDrive(t2, B2, run_in2, drive.uniform, drive.timed))
     if not finite.all():
         i = int(np.flatnonzero(~finite)[0])
         raise FloatingPointError(

@@ -31,7 +31,7 @@ from .._jax_compat import under_jit, under_vmap
 from .._traces import kept_jit
 from .._typing import Array, Bool, Float, Signal
 from ..actuator import Actuator
-from ..drive import Drive
+from ..drive import Drive, require_times
 from ..names import DEFAULT_SUBSTEPS
 from ..params import Parameters, check_parameters, is_concrete, physically_valid
 from ..sharding import vmap_blocked
@@ -114,6 +114,8 @@ def simulate_unchecked(
     traced into your program. Still wrap your own transformations in ``jax.jit``: the
     rest of your function otherwise runs operation by operation
     (docs/derivatives.md)."""
+    if losses is not None:
+        require_times(drive)
     if _outside_jit((params, actuator, drive, losses)):
         return _simulate_jit(params, actuator, drive, variant, substeps, losses)
     return _simulate(params, actuator, drive, variant, substeps, losses)
@@ -231,6 +233,8 @@ def _check_inputs(params, actuator, drive, variant, substeps, losses=None) -> No
     if losses is not None and not isinstance(losses, Losses):
         raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess, lag, relax) or None; got "
                         f"{losses!r}.")
+    if losses is not None:
+        require_times(drive)
     check_parameters(params)
 
 
@@ -296,7 +300,8 @@ def simulate(
         lambda: _simulate_jit(params, actuator, drive, variant, substeps, losses),
         lambda sim: np.isfinite(np.asarray(sim.M)) & np.isfinite(np.asarray(sim.y)),
         drive, np.asarray(drive.observed(drive.H)), substeps, losses,
-        lambda t2, H2, run_in2: Drive(t2, H2, run_in2, drive.uniform, drive.periodic))
+        lambda t2, H2, run_in2: Drive(t2, H2, run_in2, drive.uniform, drive.periodic,
+                                      drive.timed))
     if not finite.all():
         bad = np.flatnonzero(~finite)
         i = int(bad[0])
