@@ -204,7 +204,8 @@ def drive_from_record(t: Float[ArrayLike, " T"] | None, H: Float[ArrayLike, " T"
     """
     H = np.asarray(H, dtype=np.float64)
     if H.ndim != 1 or H.shape[0] < 4:
-        raise ValueError(f"A record needs at least 4 field samples; got shape {H.shape}.")
+        raise ValueError(f"A record needs at least 4 field samples in one dimension (one "
+                         f"value per sample); got shape {H.shape}.")
     if not np.all(np.isfinite(H)):
         bad = np.flatnonzero(~np.isfinite(H))[:5].tolist()
         raise ValueError(f"The field record contains NaN or inf at samples {bad}.")

@@ -269,6 +269,8 @@ def _api_table(files):
         (lambda: jh.PlayJA(spread=-1.0), ValueError, "spread must lie in [0, 10]"),
         (lambda: jh.PlayJA(cells=0), ValueError, "cells must be an integer in [1, 256]"),
         (lambda: jh.PreisachJA(a_rev=0.0), ValueError, "a_rev must lie in [1e-6, 1e9]"),
+        (lambda: jh.drive_from_record(None, H[None]), ValueError,
+         "in one dimension (one value per sample); got shape (1, "),
     ]
 
 
