@@ -387,3 +387,8 @@ def test_losses_refuse_a_record_given_without_times_in_every_entry_point():
     assert not padded.timed
     mixed, _ = pad_drives([untimed, timed])
     assert not mixed.timed
+    from jaxhyst.identify.flux import stack_flux_drives
+
+    timed_flux = jh.flux_from_record(phase / 300.0, B)
+    assert not stack_flux_drives([timed_flux, flux]).timed
+    assert stack_flux_drives([timed_flux, timed_flux]).timed

@@ -43,6 +43,9 @@ def stack_flux_drives(drives: Sequence[FluxDrive]) -> FluxDrive:
     if len(shapes) != 1:
         raise ValueError(f"the records must have one length and run-in (their (samples, "
                          f"run-in) are {sorted(shapes)}); resample them to a common length.")
+    uniform, timed = all(d.uniform for d in drives), all(d.timed for d in drives)
+    drives = [d if (d.uniform, d.timed) == (uniform, timed) else  # (one structure for all)
+              FluxDrive(d.t, d.B, d.run_in, uniform, timed) for d in drives]
     return jax.tree.map(lambda *xs: jnp.stack(xs), *drives)
 
 
