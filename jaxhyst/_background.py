@@ -29,17 +29,27 @@ _listening = False
 THREAD_NAME = "jaxhyst-compile-meanwhile"
 
 
+class _Ready(threading.Event):
+    """Set once the caller has lowered ``left`` more large programs."""
+
+    def __init__(self, left: int):
+        super().__init__()
+        self.left = left
+
+
 def _on_lowered(event, duration, **_):
     if event == "/jax/core/compile/jaxpr_to_mlir_module_duration" and \
             duration >= LARGE_LOWERING:
         for ready in tuple(_WAITING.get(threading.get_ident(), ())):
-            ready.set()
+            ready.left -= 1
+            if ready.left <= 0:
+                ready.set()
 
 
 class Meanwhile:
     """A background compilation (`meanwhile`); ``join()`` before using its programs."""
 
-    def __init__(self, work, wait: float):
+    def __init__(self, work, wait: float, lowerings: int = 1):
         import jax
 
         global _listening
@@ -47,7 +57,7 @@ class Meanwhile:
             jax.monitoring.register_event_duration_secs_listener(_on_lowered)
             _listening = True
         log = jax.config.jax_log_compiles  # (the caller's, e.g. in jax.log_compiles())
-        caller, self.ready = threading.get_ident(), threading.Event()
+        caller, self.ready = threading.get_ident(), _Ready(lowerings)
         _WAITING.setdefault(caller, set()).add(self.ready)
 
         def run():
@@ -68,15 +78,15 @@ class Meanwhile:
         self.thread.join()
 
 
-def meanwhile(work, *, wait: float = 20.0) -> Meanwhile | None:
+def meanwhile(work, *, wait: float = 20.0, lowerings: int = 1) -> Meanwhile | None:
     """Run ``work()`` (calls of compiled programs on inputs of the right shapes) in a
-    background thread once the caller has lowered a large program, or after ``wait``
-    seconds; None (nothing started) where JIT is disabled."""
+    background thread once the caller has lowered ``lowerings`` more large programs, or
+    after ``wait`` seconds; None (nothing started) where JIT is disabled."""
     import jax
 
     if jax.config.jax_disable_jit:
         return None
-    return Meanwhile(work, wait)
+    return Meanwhile(work, wait, lowerings)
 
 
 #: Per thread: what to call once a multi-start fit run there has settled (`when_settled`,

@@ -142,15 +142,42 @@ def _compile_report_meanwhile(problem, report, linearized: bool = False):
 NOT_EXACT = 1e-14
 
 
-def refits_meanwhile(problem, cost, first=None, now: bool = True):
+#: Data whose own noise (`_noisy`) is above this fraction of their range are never fitted
+#: exactly: the profile check's re-fits will run.
+NOISY = 1e-4
+
+
+def _noisy(problem) -> bool:
+    """Whether some observed series of ``problem`` (64 samples or more) carries noise
+    above `NOISY` of its range, estimated from its 4th differences (robustly: their median
+    absolute value over 0.6745·√70; a smooth signal's are far smaller). It decides only
+    when the re-fit program starts compiling, never a result."""
+    import jax
+    import numpy as np
+
+    try:
+        leaves = jax.tree_util.tree_leaves(problem.observations)
+    except Exception:  # noqa: BLE001  (a problem without data to look at: wait)
+        return False
+    for leaf in leaves:
+        a = np.asarray(leaf, dtype=np.float64)
+        for row in a.reshape(-1, a.shape[-1]) if a.ndim else ():
+            span = float(np.ptp(row)) if row.size >= 64 else 0.0
+            if span > 0 and np.median(np.abs(np.diff(row, 4))) / 5.64 > NOISY * span:
+                return True
+    return False
+
+
+def refits_meanwhile(problem, cost, first=None, now: bool | int = True):
     """Compile the profile check's re-fit program in a background thread (after
     ``first``, other background work, so that two compiles do not share the cores with
     the fit), once per problem structure in a process, where the fit's ``cost`` is above
     an exact fit's (`NOT_EXACT`: an exact fit's report re-fits nothing, so nothing is
     compiled for it); else None. A fit calls this once its best cost has settled,
-    ``jaxhyst report`` with the result's cost. ``now``: start at once, else once the
-    caller has lowered its next large program. The caller that runs the check holds it
-    `awaited` under ``REFITS``."""
+    ``jaxhyst report`` with the result's cost, a fit of noisy data (`_noisy`) at its
+    start. ``now``: start at once (True), once the caller has lowered its next large
+    program (False) or its next ``now`` ones (an int). The caller that runs the check
+    holds it `awaited` under ``REFITS``."""
     if not cost > NOT_EXACT:
         return None
     key = _structure(problem)
@@ -165,7 +192,9 @@ def refits_meanwhile(problem, cost, first=None, now: bool = True):
         if key is not None:
             _COMPILED[key] = _COMPILED.get(key, set()) | {"refits"}
 
-    return meanwhile(work, wait=0.0) if now else meanwhile(work)
+    if now is True:
+        return meanwhile(work, wait=0.0)
+    return meanwhile(work, lowerings=1 if now is False else int(now))
 
 
 def _linearized(args, kwargs) -> bool:
@@ -187,11 +216,17 @@ def _with_report(fn, linearized=lambda args, kwargs: False):
     @functools.wraps(fn)
     def wrapped(problem, *args, report: bool = True, **kwargs):
         background = _compile_report_meanwhile(problem, report, linearized(args, kwargs))
-        later = []  # (the profile's re-fits: once the fit shows it is not exact)
+        later = []  # (the profile's re-fits: at once for noisy data, else once the fit
+        # shows it is not exact)
+        if report == "profile" and _noisy(problem):  # (after the fit's step is lowered:
+            # a solver's first two large programs, its start and its step)
+            later.append(refits_meanwhile(problem, 1.0, background, now=2))
 
         def settled(cost):
-            if report == "profile":
+            if report == "profile" and not later:
                 later.append(refits_meanwhile(problem, cost, background))
+            elif later and later[0] is not None:  # (its lowerings may not come: programs
+                later[0].ready.set()               # loaded from kept traces)
 
         try:
             with when_settled(settled):

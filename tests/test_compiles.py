@@ -358,3 +358,43 @@ def test_replicate_fits_and_profiles_take_their_step_limit_as_a_value():
     assert np.all(one["steps"] <= 1) and np.all(first["steps"] > 1), (one["steps"],
                                                                      first["steps"])
     assert np.all(np.isfinite(prof.cost)) and prof.delta_chi2.min() < 1e-6
+
+
+def test_a_fit_of_noisy_data_compiles_its_refits_once_its_step_is_lowered():
+    """Data with noise (`fit._noisy`: the 4th differences' robust scale above 1e-4 of the
+    range) are never fitted exactly, so a profile-checked fit starts compiling its
+    re-fit program as soon as its own step is lowered (the caller's second large
+    lowering: `meanwhile(…, lowerings=2)`), beside the step's compile, instead of once
+    its cost has settled. A noise-free model loop (60 or 200 samples a period) is not
+    noisy; a series under 64 samples is not judged."""
+    from jaxhyst import _background
+
+    assert jh.fit._noisy(_loop_problem(200, 1e-3))
+    assert not jh.fit._noisy(_loop_problem(200, 0.0))
+    assert not jh.fit._noisy(_loop_problem(60, 0.0))
+    assert not jh.fit._noisy(_loop_problem(41, 1e-2))
+    started = threading.Event()
+    job = _background.meanwhile(started.set, lowerings=2)
+    for _ in range(2):
+        assert not started.wait(0.2)
+        _background._on_lowered("/jax/core/compile/jaxpr_to_mlir_module_duration", 1.0)
+    assert started.wait(10.0)
+    job.join()
+
+
+@pytest.mark.extended  # (a multi-start fit with its profile-checked report)
+def test_a_profile_checked_fit_of_noisy_data_compiles_its_refits_beside_its_step():
+    """End to end: the re-fit program of a noisy loop's profile-checked fit compiles in
+    the background thread, once, and the report is the one computed afterwards."""
+    from jaxhyst.analysis import identifiability
+
+    problem = _loop_problem(200, 1e-3)
+    starts = jh.Parameters.from_array(np.stack([SOFT.replace(a=31.0, k=19.0, c=0.31)
+                                                .to_array()] * 2))
+    with counting() as compiled:
+        res = jh.multistart(problem, starts, max_steps=60, report="profile")
+    assert compiled.threads.get("jit(_held_costs)") == {"jaxhyst-compile-meanwhile"}, \
+        compiled.threads
+    assert sum(n.startswith("Compiling jit(_held_costs) ") for n in compiled.names) == 1
+    assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-meanwhile"]
+    assert res.report.intervals == identifiability(problem, res.params).intervals
