@@ -249,7 +249,8 @@ def _with_report(fn, linearized=lambda args, kwargs: False):
         "(``\"profile\"``: with intervals checked along the profile likelihood). The "
         "report's programs compile in a background thread while the fit runs (the first "
         "time for a problem's structure; joined before this returns); the profile's "
-        "re-fits there too, once a multi-start fit's cost has settled above an exact fit's.")
+        "re-fits there too: for noisy data once the fit's step is lowered, else once a "
+        "multi-start fit's cost has settled above an exact fit's.")
     return wrapped
 
 
