@@ -239,9 +239,9 @@ def drive_from_record(t: Float[ArrayLike, " T"] | None, H: Float[ArrayLike, " T"
 def require_times_for(space, drives) -> None:
     """`require_times` for each of ``drives`` where the parameter space ``space`` holds
     loss coefficients (`jaxhyst.ParameterSpace.with_losses`: the rate-dependent model)."""
-    from .model.losses import LOSS_NAMES
+    from .names import LOSS_PARAMETER_NAMES, base_name
 
-    if any(name.split("[")[0] in LOSS_NAMES for name in space.flat_names):
+    if any(base_name(name) in LOSS_PARAMETER_NAMES for name in space.flat_names):
         for drive in drives:
             require_times(drive, "loss coefficients (a space with losses)")
 

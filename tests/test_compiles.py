@@ -262,6 +262,20 @@ def _loop_problem(samples_per_period, noise):
                       output="flux_density", variant=jh.ClassicJA(), substeps=2)
 
 
+def _refits_compile_meanwhile_once(problem, starts):
+    """A profile-checked multi-start fit of ``problem`` compiles its re-fit program in
+    the background thread, once, and its report is the one computed afterwards."""
+    from jaxhyst.analysis import identifiability
+
+    with counting() as compiled:
+        res = jh.multistart(problem, starts, max_steps=60, report="profile")
+    assert compiled.threads.get("jit(_held_costs)") == {"jaxhyst-compile-meanwhile"}, \
+        compiled.threads
+    assert sum(n.startswith("Compiling jit(_held_costs) ") for n in compiled.names) == 1
+    assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-meanwhile"]
+    assert res.report.intervals == identifiability(problem, res.params).intervals
+
+
 @pytest.mark.extended  # (four multi-start fits with profile-checked reports)
 def test_the_profile_refits_compile_meanwhile_once_the_fits_cost_has_settled_inexactly():
     """A multi-start fit with the profile-checked report compiles the check's re-fit
@@ -269,7 +283,6 @@ def test_the_profile_refits_compile_meanwhile_once_the_fits_cost_has_settled_ine
     fit's — once, not again for the report, which is the one the caller's thread makes
     afterwards; a noise-free fit (exact: its report re-fits nothing) compiles no re-fit
     program at all."""
-    from jaxhyst.analysis import identifiability
 
     near, far = SOFT.replace(a=31.0, k=19.0, c=0.31), SOFT.replace(a=90.0, k=55.0, c=0.8)
     starts = jh.Parameters.from_array(np.stack([near.to_array(), far.to_array()]))
@@ -282,13 +295,7 @@ def test_the_profile_refits_compile_meanwhile_once_the_fits_cost_has_settled_ine
     first = jh.multistart(problem, starts, max_steps=60, report=False)
     # from its optimum (settled at once) and from afar (a batch that goes on)
     starts = jh.Parameters.from_array(np.stack([first.params.to_array(), far.to_array()]))
-    with counting() as compiled:
-        res = jh.multistart(problem, starts, max_steps=60, report="profile")
-    assert compiled.threads.get("jit(_held_costs)") == {"jaxhyst-compile-meanwhile"}, \
-        compiled.threads
-    assert sum(n.startswith("Compiling jit(_held_costs) ") for n in compiled.names) == 1
-    assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-meanwhile"]
-    assert res.report.intervals == identifiability(problem, res.params).intervals
+    _refits_compile_meanwhile_once(problem, starts)
 
 
 def test_a_reports_profile_refits_compile_beside_its_jacobian():
@@ -386,15 +393,8 @@ def test_a_fit_of_noisy_data_compiles_its_refits_once_its_step_is_lowered():
 def test_a_profile_checked_fit_of_noisy_data_compiles_its_refits_beside_its_step():
     """End to end: the re-fit program of a noisy loop's profile-checked fit compiles in
     the background thread, once, and the report is the one computed afterwards."""
-    from jaxhyst.analysis import identifiability
 
     problem = _loop_problem(200, 1e-3)
     starts = jh.Parameters.from_array(np.stack([SOFT.replace(a=31.0, k=19.0, c=0.31)
                                                 .to_array()] * 2))
-    with counting() as compiled:
-        res = jh.multistart(problem, starts, max_steps=60, report="profile")
-    assert compiled.threads.get("jit(_held_costs)") == {"jaxhyst-compile-meanwhile"}, \
-        compiled.threads
-    assert sum(n.startswith("Compiling jit(_held_costs) ") for n in compiled.names) == 1
-    assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-meanwhile"]
-    assert res.report.intervals == identifiability(problem, res.params).intervals
+    _refits_compile_meanwhile_once(problem, starts)
