@@ -11,8 +11,10 @@ exceptions too (the caller meets the same error, where it can say it).
 The thread starts its work once the calling thread has lowered a large program (its
 tracing, which holds the GIL, is then done; XLA's compile releases it), and runs under
 the caller's ``jax.log_compiles`` setting, so that compile counters see its programs.
-The caller joins it (`Meanwhile.join`) before it uses what the thread compiles, and on
-every way out. Where the caller traces while the thread traces (both hold the GIL) or two
+The caller joins it (`Meanwhile.join`) before it uses what the thread compiles; on a way
+out where it is not needed (an error, a report without re-fits) it drops it
+(`Meanwhile.drop`: work not yet started never runs, work under way is waited for).
+Where the caller traces while the thread traces (both hold the GIL) or two
 compiles share two cores, each slows the other: the gain is measured per use
 (`benchmarks/RESULTS.md`, issue 45).
 """
@@ -58,11 +60,15 @@ class Meanwhile:
             _listening = True
         log = jax.config.jax_log_compiles  # (the caller's, e.g. in jax.log_compiles())
         caller, self.ready = threading.get_ident(), _Ready(lowerings)
+        self._lock, self._dropped = threading.Lock(), False
         _WAITING.setdefault(caller, set()).add(self.ready)
 
         def run():
             self.ready.wait(wait)
             _WAITING.get(caller, set()).discard(self.ready)
+            with self._lock:
+                if self._dropped:
+                    return
             try:
                 with jax.log_compiles(log):
                     work()
@@ -76,6 +82,13 @@ class Meanwhile:
         """Wait until the work is done (it starts now if it had not)."""
         self.ready.set()
         self.thread.join()
+
+    def drop(self) -> None:
+        """Drop the work if it has not started, else wait until it is done (a caller
+        that turned out not to need it, or leaves on an error)."""
+        with self._lock:
+            self._dropped = True
+        self.join()
 
 
 def meanwhile(work, *, wait: float = 20.0, lowerings: int = 1) -> Meanwhile | None:
@@ -131,7 +144,8 @@ _AWAITED = threading.local()
 class awaited:
     """Within the block, ``wait_for(name)`` joins ``work`` (a `Meanwhile`, or None: nothing
     to wait for), so that the caller's steps before the one that uses its programs run
-    beside it; joined on the way out of the block in any case."""
+    beside it; on the way out of the block it is dropped if it has not started (nothing
+    in the block needed it), else joined."""
 
     def __init__(self, name: str, work: Meanwhile | None):
         self.name, self.work = name, work
@@ -146,7 +160,7 @@ class awaited:
     def __exit__(self, *exc):
         _AWAITED.works[self.name] = self.previous
         if self.work is not None:
-            self.work.join()
+            self.work.drop()
         return False
 
 

@@ -231,14 +231,13 @@ def _with_report(fn, linearized=lambda args, kwargs: False):
         try:
             with when_settled(settled):
                 result = fn(problem, *args, **kwargs)
-        except BaseException:
-            for thread in later:
+        except BaseException:  # (a compile not yet started is not waited for)
+            for thread in [*later, background]:
                 if thread is not None:
-                    thread.join()
+                    thread.drop()
             raise
-        finally:
-            if background is not None:
-                background.join()
+        if background is not None:
+            background.join()
         # (the re-fits compile beside the report's first part: the profile check waits
         # for them, `profile_intervals.REFITS`)
         with awaited(REFITS, later[0] if later else None):

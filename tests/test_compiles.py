@@ -387,6 +387,17 @@ def test_a_fit_of_noisy_data_compiles_its_refits_once_its_step_is_lowered():
         _background._on_lowered("/jax/core/compile/jaxpr_to_mlir_module_duration", 1.0)
     assert started.wait(10.0)
     job.join()
+    # work not started is dropped, not run, by a caller that leaves (an error, or a
+    # report that needed no re-fits): a fit that fails at its input waits for no compile
+    ran = threading.Event()
+    job = _background.meanwhile(ran.set, lowerings=2)
+    job.drop()
+    assert not ran.is_set() and not job.thread.is_alive()
+    with counting() as compiled:
+        with pytest.raises(ValueError):
+            jh.multistart(_loop_problem(200, 1e-3), np.full((2, 7), 0.5), report="profile")
+    assert "jaxhyst-compile-meanwhile" not in set().union(*compiled.threads.values()), \
+        compiled.threads
 
 
 @pytest.mark.extended  # (a multi-start fit with its profile-checked report)
