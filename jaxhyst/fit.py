@@ -231,8 +231,9 @@ def _with_report(fn, linearized=lambda args, kwargs: False):
         try:
             with when_settled(settled):
                 result = fn(problem, *args, **kwargs)
-        except BaseException:  # (a compile not yet started is not waited for)
-            for thread in [*later, background]:
+        except BaseException:  # (a compile not yet started is not waited for; the
+            # report's first: the re-fits' work waits for it)
+            for thread in [background, *later]:
                 if thread is not None:
                     thread.drop()
             raise
