@@ -185,7 +185,6 @@ def test_read_loops_units_headers_delimiters_and_loop_column(tmp_path):
         read_loops(h)
 
 
-
 def test_a_pipe_is_read_like_a_file_and_a_device_is_not_called_missing(tmp_path):
     """bash's ``<(…)`` hands a pipe (/dev/fd/N): it is read like a file; /dev/null is
     empty, not "does not exist"; a directory given as a result file is named so."""
@@ -207,6 +206,7 @@ def test_a_pipe_is_read_like_a_file_and_a_device_is_not_called_missing(tmp_path)
         read_json(tmp_path)
     with pytest.raises(DataError, match="does not exist"):
         read_json(tmp_path / "nowhere.json")
+
 
 MALFORMED = {
     "nan": ("t_s,H_A_per_m,y_m\n" + "".join(f"{t},{h},{'nan' if i == 7 else y}\n" for i, (

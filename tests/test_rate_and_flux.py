@@ -355,6 +355,7 @@ def test_losses_refuse_a_record_given_without_times_in_every_entry_point():
     loop): a rate-dependent term on it would be computed with 1 s steps and be silently
     wrong, so every entry point that takes losses refuses it in one line, while the
     rate-independent model runs on it as before and padding keeps the mark."""
+    from jaxhyst.identify.flux import stack_flux_drives
     from jaxhyst.identify.joint import pad_drives
 
     phase = np.linspace(0.0, 2.0 * np.pi, 41)
@@ -387,8 +388,6 @@ def test_losses_refuse_a_record_given_without_times_in_every_entry_point():
     assert not padded.timed
     mixed, _ = pad_drives([untimed, timed])
     assert not mixed.timed
-    from jaxhyst.identify.flux import stack_flux_drives
-
     timed_flux = jh.flux_from_record(phase / 300.0, B)
     assert not stack_flux_drives([timed_flux, flux]).timed
     assert stack_flux_drives([timed_flux, timed_flux]).timed
