@@ -58,7 +58,8 @@ class Drive(eqx.Module):
 
     ``t`` and ``H`` are data: a new frequency, amplitude or jitter in ``t`` does not
     recompile a jitted simulation, and drives of equal length stack for ``vmap``. Only
-    the length, ``run_in`` and ``uniform`` are compile-time structure. Uniform drives
+    the length, ``run_in``, ``uniform``, ``periodic`` and ``timed`` are compile-time
+    structure. Uniform drives
     share one structural discretization (one matrix exponential) instead of one per
     step.
     """
