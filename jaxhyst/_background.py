@@ -78,9 +78,13 @@ class Meanwhile:
         self.thread = threading.Thread(target=run, name=THREAD_NAME, daemon=True)
         self.thread.start()
 
+    def start(self) -> None:
+        """Start the work now if it has not started (without waiting for it)."""
+        self.ready.set()
+
     def join(self) -> None:
         """Wait until the work is done (it starts now if it had not)."""
-        self.ready.set()
+        self.start()
         self.thread.join()
 
     def drop(self) -> None:

@@ -168,16 +168,15 @@ def _noisy(problem) -> bool:
     return False
 
 
-def refits_meanwhile(problem, cost, first=None, now: bool | int = True):
+def refits_meanwhile(problem, cost, first=None, lowerings: int = 0):
     """Compile the profile check's re-fit program in a background thread (after
     ``first``, other background work, so that two compiles do not share the cores with
     the fit), once per problem structure in a process, where the fit's ``cost`` is above
     an exact fit's (`NOT_EXACT`: an exact fit's report re-fits nothing, so nothing is
     compiled for it); else None. A fit calls this once its best cost has settled,
     ``jaxhyst report`` with the result's cost, a fit of noisy data (`_noisy`) at its
-    start. ``now``: start at once (True), once the caller has lowered its next large
-    program (False) or its next ``now`` ones (an int). The caller that runs the check
-    holds it `awaited` under ``REFITS``."""
+    start. ``lowerings``: 0, start at once; n, once the caller has lowered its next n
+    large programs. The caller that runs the check holds it `awaited` under ``REFITS``."""
     if not cost > NOT_EXACT:
         return None
     key = _structure(problem)
@@ -192,9 +191,9 @@ def refits_meanwhile(problem, cost, first=None, now: bool | int = True):
         if key is not None:
             _COMPILED[key] = _COMPILED.get(key, set()) | {"refits"}
 
-    if now is True:
+    if lowerings == 0:
         return meanwhile(work, wait=0.0)
-    return meanwhile(work, lowerings=1 if now is False else int(now))
+    return meanwhile(work, lowerings=lowerings)
 
 
 def _linearized(args, kwargs) -> bool:
@@ -220,13 +219,13 @@ def _with_report(fn, linearized=lambda args, kwargs: False):
         # shows it is not exact)
         if report == "profile" and _noisy(problem):  # (after the fit's step is lowered:
             # a solver's first two large programs, its start and its step)
-            later.append(refits_meanwhile(problem, 1.0, background, now=2))
+            later.append(refits_meanwhile(problem, 1.0, background, lowerings=2))
 
         def settled(cost):
             if report == "profile" and not later:
                 later.append(refits_meanwhile(problem, cost, background))
             elif later and later[0] is not None:  # (its lowerings may not come: programs
-                later[0].ready.set()               # loaded from kept traces)
+                later[0].start()                   # loaded from kept traces)
 
         try:
             with when_settled(settled):

@@ -310,7 +310,7 @@ def test_a_reports_profile_refits_compile_beside_its_jacobian():
     problem, _ = exponential_problem(0.7)  # (a residual function of its own: new programs)
     fit = jh.solve(problem, {"b": 0.4, "m": 0.1}, solver="lm", report=False)
     with counting() as compiled:
-        with awaited(REFITS, jh.fit.refits_meanwhile(problem, fit.cost, now=False)):
+        with awaited(REFITS, jh.fit.refits_meanwhile(problem, fit.cost, lowerings=1)):
             report = identifiability(problem, fit.params)
     assert compiled.threads.get("jit(_held_costs)") == {"jaxhyst-compile-meanwhile"}, \
         compiled.threads

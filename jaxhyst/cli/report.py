@@ -43,7 +43,7 @@ def run(args) -> int:
                                  else load_result)(args.result)
     cost = saved.get("cost") if isinstance(saved, dict) else None
     # (the profile check's re-fits compile beside the Jacobian where the fit is not exact)
-    refits = refits_meanwhile(problem, cost, now=False) if isinstance(cost, (int, float)) \
+    refits = refits_meanwhile(problem, cost, lowerings=1) if isinstance(cost, (int, float)) \
         else None
     with awaited(REFITS, refits):
         rep = identifiability(problem, params, max_rel_se=args.max_rel_se)
