@@ -232,6 +232,10 @@ def _api_table(files):
     B = 1e-3 * H
     drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=50)
     bad = jh.TABLE1_TRUE.to_dict()
+
+    def problem():
+        return jh.synthetic_problem(jh.TABLE1_TRUE, drive, jh.ACTUATOR1, jh.TABLE1_BOUNDS)
+
     return [  # (call, exception type, fragment)
         (lambda: read_loops(files["binary"]), DataError, "is not text"),
         (lambda: read_loops(files["dir"]), DataError, "is a directory"),
@@ -271,6 +275,15 @@ def _api_table(files):
         (lambda: jh.PreisachJA(a_rev=0.0), ValueError, "a_rev must lie in [1e-6, 1e9]"),
         (lambda: jh.drive_from_record(None, H[None]), ValueError,
          "in one dimension (one value per sample); got shape (1, "),
+        (lambda: jh.sinusoidal_flux(50.0, float("nan")), ValueError,
+         "amplitude must be a finite number (T)"),
+        (lambda: jh.Losses(excess="0.5 A"), ValueError, "Losses.excess must lie in"),
+        (lambda: jh.multistart(problem(), np.zeros((0, 10))), ValueError,
+         "needs at least one start"),
+        (lambda: jh.multistart(problem(), np.where(np.eye(10)[:2] > 0, np.nan, 0.5)),
+         ValueError, "got nan for Ms of start 0"),
+        (lambda: jh.solve(problem(), jh.TABLE1_TRUE.replace(k=float("nan"))), ValueError,
+         "the start's k is not a finite number"),
     ]
 
 

@@ -12,6 +12,7 @@ import numpy as np
 
 from .._driver import KEYBOARD, drive
 from .._interrupt import Interrupted
+from ..params import is_concrete
 from ..progress import NoProgressMeter, progress_meter
 from ._stepped import SteppedSolve, best_start
 from .problem import AbstractProblem, check_problem
@@ -61,9 +62,14 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
     tree_kind = not jax.tree_util.treedef_is_leaf(space.treedef)
     if tree_kind and jax.tree.structure(start) == space.treedef:
         leaf, shape = jax.tree.leaves(start)[0], space.shapes[0]
-        if jnp.ndim(leaf) > len(shape):
-            return jax.vmap(space.z_from_params)(start)
-        return space.z_from_params(start)
+        z = jax.vmap(space.z_from_params)(start) if jnp.ndim(leaf) > len(shape) else \
+            space.z_from_params(start)
+        if is_concrete(z) and not np.all(np.isfinite(np.asarray(z))):
+            at = np.argwhere(~np.isfinite(np.asarray(z)))[0]
+            where = f" of start {at[0]}" if z.ndim == 2 else ""
+            raise ValueError(f"the start's {space.names[at[-1]]}{where} is not a finite "
+                             "number; give every free parameter a value.")
+        return z
     if isinstance(start, dict) and tree_kind and space.treedef.node_data()[0] is not dict:
         return _z_of_values(space, start)
     try:
@@ -74,13 +80,20 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
         raise ValueError(f"A start in box coordinates needs {space.n_free} entries (free "
                          f"parameters {space.names}); got shape {u.shape}.")
     u_np = np.asarray(u)
+    if u_np.size == 0:
+        raise ValueError(f"a batch of starts needs at least one start; got shape {u.shape}.")
+    if not np.all(np.isfinite(u_np)):
+        at = np.argwhere(~np.isfinite(u_np))[0]
+        where = f" of start {at[0]}" if u.ndim == 2 else ""
+        raise ValueError(f"Box coordinates u of a start must be finite numbers in [0, 1]; "
+                         f"got {u_np[tuple(at)]} for {space.names[at[-1]]}{where}.")
     if not np.all((u_np >= 0) & (u_np <= 1)):
         kind = (f"; to start from values of the parameters give {_kind(space)}"
                 if tree_kind else "")
         raise ValueError(
             f"Box coordinates u of a start must lie in [0, 1] (an array start is read as "
             f"box coordinates, one per free parameter: {', '.join(space.names)}); got "
-            f"values from {np.nanmin(u_np):.6g} to {np.nanmax(u_np):.6g}{kind}.")
+            f"values from {u_np.min():.6g} to {u_np.max():.6g}{kind}.")
     return _z_from_u_jit(u)
 
 
@@ -179,11 +192,11 @@ def multistart(problem: AbstractProblem, starts, solver="lm", max_steps: int = 2
     ``max_steps`` matters. The outcome is the best start's. ``progress`` and
     interruption as for `solve`."""
     if isinstance(starts, (int, np.integer)) and not isinstance(starts, bool):
-        n = problem.space.n_free
+        n, k = problem.space.n_free, (starts if starts >= 1 else 8)
         raise ValueError(
-            f"multistart takes the starts themselves, not their number: e.g. {starts} "
-            f"starts spread over the box as box coordinates, jax.random.uniform("
-            f"jax.random.PRNGKey(0), ({starts}, {n})), or a batch of parameters.")
+            f"multistart takes the starts themselves, not their number ({starts}): e.g. "
+            f"{k} starts spread over the box as box coordinates, jax.random.uniform("
+            f"jax.random.PRNGKey(0), ({k}, {n})), or a batch of parameters.")
     check_problem(problem)
     z0s = start_z(problem, starts)
     if z0s.ndim != 2:

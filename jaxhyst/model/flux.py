@@ -343,8 +343,10 @@ def _check_accuracy(substeps, sim, more_substeps, finer) -> None:
 def sinusoidal_flux(frequency, amplitude, offset=0.0, **kwargs) -> FluxDrive:
     """B(t) = offset + amplitude·sin(2πft) (T); keyword arguments (periods,
     samples_per_period, run-in and ramp periods) as `jaxhyst.sinusoidal_field`."""
-    from ..drive import sinusoidal_field
+    from ..drive import _check_number, sinusoidal_field
 
+    for name, value in (("amplitude", amplitude), ("offset", offset)):  # (in T, not A/m)
+        _check_number(name, value, lambda v: True, " (T)")
     return FluxDrive.of(sinusoidal_field(frequency, amplitude, offset, **kwargs))
 
 

@@ -90,7 +90,10 @@ class Losses(eqx.Module):
         for name, value in (("eddy", eddy), ("excess", excess), ("lag", lag),
                             ("relax", relax)):
             if is_concrete(value):
-                v = np.asarray(value, dtype=np.float64)
+                try:
+                    v = np.asarray(value, dtype=np.float64)
+                except (TypeError, ValueError):  # (text, None: reported below)
+                    v = np.array(np.nan)
                 top = LOSS_LIMITS[name]
                 if not (np.all(np.isfinite(v)) and np.all(v >= 0) and np.all(v <= top)):
                     hint = ("an hour is a unit mistake" if name in ("lag", "relax") else
