@@ -224,12 +224,13 @@ def check_parameters(p: Parameters) -> None:
         if v is None:
             continue
         if not np.all(np.isfinite(v)):
-            raise ValueError(f"Parameter {name} is not finite ({v!r}); give a finite value.")
+            shown = v[~np.isfinite(v)].ravel()[:3].tolist() if v.ndim else float(v)
+            raise ValueError(f"Parameter {name} is not finite ({shown}); give a finite value.")
         if name in rules:
             ok, msg = rules[name]
             bad = ~ok(v)
             if np.any(bad):
-                shown = v[bad].ravel()[:3] if v.ndim else v
+                shown = v[bad].ravel()[:3].tolist() if v.ndim else float(v)
                 raise ValueError(f"Parameter {name} = {shown} {msg}.")
 
 

@@ -44,7 +44,7 @@ from .model.paths import model_parameters, model_values, own_parameters, split_p
 from .model.play import AbstractPlayForm, PlayJA, PreisachJA
 from .model.simulate import Simulation, simulate, simulate_unchecked
 from .names import DEFAULT_SUBSTEPS
-from .params import NAMES, UNITS, Parameters, is_concrete
+from .params import NAMES, TABLE1_TRUE, UNITS, Parameters, check_parameters, is_concrete
 
 FORMAT = "jaxhyst-model"
 VERSION = 1
@@ -93,6 +93,7 @@ class Model(eqx.Module):
             if not isinstance(value, kind):
                 raise TypeError(f"Model's {name} must be a jaxhyst.{kind.__name__} (e.g. "
                                 f"{example}); got {type(value).__name__}.")
+        check_parameters(self.params)  # (values it can read: not inside a trace)
         if self.losses is not None and not isinstance(self.losses, Losses):
             raise TypeError(f"Model's losses must be a jaxhyst.Losses or None; got "
                             f"{type(self.losses).__name__}.")
@@ -278,7 +279,7 @@ def load_model(path: str | os.PathLike, variant: AbstractJAVariant | None = None
         raise ModelFileError(f"{path} was saved with the form {name}; variant= is a "
                              f"{type(variant).__name__}.")
     shape = tuple(header["parameter_shape"])
-    params = Parameters(*[jnp.zeros(shape) for _ in NAMES])
+    params = Parameters(*[jnp.full(shape, getattr(TABLE1_TRUE, n)) for n in NAMES])  # (valid)
     if isinstance(variant, AbstractPlayForm):  # (its own parameters: one per set)
         own = list(variant.own_parameters)
         variant = eqx.tree_at(lambda f: [getattr(f, n) for n in own], variant,
@@ -305,6 +306,10 @@ def load_model(path: str | os.PathLike, variant: AbstractJAVariant | None = None
     if any(np.shape(a) != np.shape(b) for a, b in zip(leaves, like_leaves, strict=True)):
         raise ModelFileError(f"{path}: its arrays do not match its header; the file is "
                              "damaged.")
+    try:
+        check_parameters(model.params)
+    except ValueError as err:
+        raise ModelFileError(f"{path}: {err}") from None
     if isinstance(model.losses, tuple):
         values = dict(zip(stored, model.losses, strict=True))
         model = eqx.tree_at(lambda m: m.losses, model, Losses(

@@ -284,6 +284,13 @@ def _api_table(files):
          ValueError, "got nan for Ms of start 0"),
         (lambda: jh.solve(problem(), jh.TABLE1_TRUE.replace(k=float("nan"))), ValueError,
          "the start's k is not a finite number"),
+        (lambda: jh.Model(jh.TABLE1_TRUE.replace(a=float("nan")), jh.ACTUATOR1), ValueError,
+         "Parameter a is not finite (nan)"),
+        (lambda: jh.frequency_response(jh.TABLE1_TRUE, jh.ACTUATOR1, [10.0, float("nan")]),
+         ValueError, "frequency must be finite (Hz); got [10.0, nan]"),
+        (lambda: jh.simulate_batch(jh.Parameters.from_array(np.tile(
+            jh.TABLE1_TRUE.to_array(), (3, 1))).replace(a=np.full(2, 7e3)), jh.ACTUATOR1,
+            drive), ValueError, "a (2,), k (3,)"),
     ]
 
 

@@ -33,7 +33,7 @@ from .._typing import Array, Bool, Float, Signal
 from ..actuator import Actuator
 from ..drive import Drive, require_times
 from ..names import DEFAULT_SUBSTEPS
-from ..params import Parameters, check_parameters, is_concrete, physically_valid
+from ..params import NAMES, Parameters, check_parameters, is_concrete, physically_valid
 from ..sharding import vmap_blocked
 from ._batching import blocked_under_vmap
 from .accuracy import (
@@ -355,9 +355,10 @@ def simulate_batch(
     CPU a batch of hundreds runs in blocks of 64 members (`jaxhyst.sharding.vmap_blocked`:
     the same values to round-off; timings in benchmarks/RESULTS.md)."""
     _check_inputs(params, actuator, drive, variant, substeps, losses)
-    if jnp.ndim(params.Ms) != 1:
+    shapes = {name: jnp.shape(getattr(params, name)) for name in NAMES}
+    if len(set(shapes.values())) != 1 or jnp.ndim(params.Ms) != 1:
         raise ValueError(
-            "simulate_batch needs Parameters with 1-D leaves of shape (P,); use simulate "
-            "for a single parameter set."
-        )
+            "simulate_batch needs Parameters with 1-D leaves of one shape (P,); got "
+            f"{', '.join(f'{n} {s}' for n, s in shapes.items())}; use simulate for a "
+            "single parameter set.")
     return _simulate_batch(params, actuator, drive, variant, substeps, losses)

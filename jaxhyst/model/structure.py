@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._typing import Array, ArrayLike, Complex, Float
 from ..actuator import Actuator
-from ..params import Parameters
+from ..params import Parameters, is_concrete
 from .interval import on_accelerator
 
 
@@ -218,9 +219,12 @@ def frequency_response(p: Parameters, actuator: Actuator,
                        frequency: Float[ArrayLike, "*shape"]) -> Complex[Array, "*shape"]:
     """G(jω) = ε/λ = (Ar·E/lr) / (Mz·(jω)² + Cz·jω + Kz)  (eq 13), complex, dimensionless.
 
-    ``frequency`` in Hz (any shape). ``jnp.abs`` gives A(ω) and ``jnp.angle`` the phase φ
-    (radians; the paper quotes the lag −φ in degrees).
+    ``frequency`` in Hz (any shape; at −f the result is the conjugate of that at f).
+    ``jnp.abs`` gives A(ω) and ``jnp.angle`` the phase φ (radians; the paper quotes the
+    lag −φ in degrees).
     """
+    if is_concrete(frequency) and not np.all(np.isfinite(np.asarray(frequency, float))):
+        raise ValueError(f"frequency must be finite (Hz); got {np.asarray(frequency).tolist()}.")
     w = 2.0 * jnp.pi * jnp.asarray(frequency, dtype=jnp.float64)
     jw = 1j * w
     return (actuator.Ar * p.E / actuator.lr) / (p.Mz * jw * jw + p.Cz * jw + p.Kz)
