@@ -129,15 +129,16 @@ def _refit_solver(solver: str, rtol: float):
 
 
 def compile_refits(problem, solver: str = "lm", max_steps: int = STEPS) -> None:
-    """Compile (not run) the re-fit program `refine_intervals` runs for ``problem``, on
-    inputs of its shapes, so that it is compiled before the check needs it:
-    `jaxhyst.fit` does this in a background thread once a fit's cost has settled above
-    an exact fit's."""
+    """Compile (not run) the re-fit program `refine_intervals` runs for ``problem``, and
+    its cost at the estimate, on inputs of their shapes, so that they are compiled before
+    the check needs them: `jaxhyst.fit` does this in a background thread once a fit's
+    cost has settled above an exact fit's."""
     size = _chunk(2 * problem.space.n_free)
     lower, upper = (jnp.asarray(np.tile(np.asarray(b, float), (size, 1)))
                     for b in (problem.space.lower, problem.space.upper))
     _held_costs.lower(problem, _refit_solver(solver, RE_FIT_TOLERANCES[0]), lower, upper,
                       jnp.zeros_like(lower), np.int64(max_steps)).compile()
+    cost_at.lower(problem, np.zeros(problem.space.n_free)).compile()  # (the check's first)
 
 
 @kept_jit
