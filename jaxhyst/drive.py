@@ -365,6 +365,9 @@ def sinusoidal_current(
     Keyword arguments are those of `sinusoidal_field`. The paper's Table 1 drive is
     ``sinusoidal_current(100.0, 0.77, 1.53, ACTUATOR1)``. Traceable like it.
     """
+    if not isinstance(actuator, Actuator):
+        raise TypeError(f"sinusoidal_current's actuator must be a jaxhyst.Actuator (e.g. "
+                        f"jaxhyst.ACTUATOR1); got {type(actuator).__name__}.")
     if actuator.n is None:
         raise ValueError(f"{actuator.name} has no turns-per-metre n; use sinusoidal_field.")
     _check_number("amplitude", amplitude, lambda v: True, " (A)")

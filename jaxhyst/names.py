@@ -24,6 +24,20 @@ VARIANT_CLASSES = {"energy": "EnergyBasedJA", "classic": "ClassicJA",
 #: whose accuracy docs/theory.md documents.
 DEFAULT_SUBSTEPS = 2
 
+
+def checked_substeps(substeps) -> int:
+    """``substeps`` as an int (a whole number >= 1: a Python or NumPy integer), else a
+    one-line ``ValueError``."""
+    import operator
+
+    try:
+        n = None if isinstance(substeps, bool) else operator.index(substeps)
+    except TypeError:
+        n = None
+    if n is None or n < 1:
+        raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
+    return n
+
 #: Output kinds that see the magnetization only (`jaxhyst.identify.outputs`: their
 #: ``magnetic_only``), for the command line, which decides before JAX is imported.
 MAGNETIC_OUTPUT_NAMES = ("magnetization", "flux_density")

@@ -291,6 +291,11 @@ def _api_table(files):
         (lambda: jh.simulate_batch(jh.Parameters.from_array(np.tile(
             jh.TABLE1_TRUE.to_array(), (3, 1))).replace(a=np.full(2, 7e3)), jh.ACTUATOR1,
             drive), ValueError, "a (2,), k (3,)"),
+        (lambda: jh.loop_problem(H, B, substeps=0), ValueError,
+         "substeps must be an integer >= 1; got 0"),
+        (lambda: jh.split_records(3, [0, 1, 2]), ValueError, "leave at least one to fit"),
+        (lambda: jh.sinusoidal_current(100.0, 0.77, 1.53, "Actuator1"), TypeError,
+         "actuator must be a jaxhyst.Actuator"),
     ]
 
 

@@ -217,4 +217,7 @@ def split_records(n: int, held_out: int | Sequence[int]) -> tuple[list[int], lis
     if bad:
         raise ValueError(f"held-out record(s) {bad} are not among the {n} records "
                          f"(0 … {n - 1}).")
+    if not set(range(n)) - {int(i) for i in out}:
+        raise ValueError(f"every one of the {n} records is held out; leave at least one to "
+                         "fit.")
     return [i for i in range(n) if i not in out], [int(i) for i in out]

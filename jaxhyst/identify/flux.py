@@ -24,7 +24,7 @@ from ..drive import require_times_for
 from ..model.flux import FluxDrive, simulate_flux_unchecked
 from ..model.jiles_atherton import PAPER_VARIANT
 from ..model.paths import split_parameters
-from ..names import DEFAULT_SUBSTEPS, base_name
+from ..names import DEFAULT_SUBSTEPS, base_name, checked_substeps
 from .problem import AbstractProblem, GaussianPrior, ResidualGroup
 from .space import ParameterSpace
 
@@ -109,7 +109,7 @@ class FluxProblem(AbstractProblem):
             raise ValueError("a record's field data are identically zero; nothing to fit.")
         self.data, self.drive, self.space = jnp.asarray(data), drive, space
         self.output, self.scales = output, jnp.asarray(scales, dtype=jnp.float64)
-        self.variant, self.substeps = variant, int(substeps)
+        self.variant, self.substeps = variant, checked_substeps(substeps)
         self.sigma = None if sigma is None else jnp.asarray(float(sigma), dtype=jnp.float64)
         self.priors = tuple(priors)
         # (shared: "relax"; per record: "relax[i]")

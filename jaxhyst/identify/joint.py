@@ -36,6 +36,7 @@ from ..actuator import MAGNETIZATION_ONLY, Actuator
 from ..drive import Drive, drive_from_record, require_times_for
 from ..model.paths import split_parameters
 from ..model.simulate import DEFAULT_SUBSTEPS, PAPER_VARIANT, simulate_unchecked
+from ..names import checked_substeps
 from ..params import STRUCTURAL, Bounds
 from ..saved import Model
 from ..sharding import batch_sharding, map_sharded
@@ -209,7 +210,7 @@ class JointProblem(AbstractProblem):
         self.actuator = actuator
         self.space = space
         self.variant = variant
-        self.substeps = int(substeps)
+        self.substeps = checked_substeps(substeps)
         self.priors = tuple(priors)
         try:
             self.shard_loops = bool(shard_loops) and batch_sharding(L, True) is not None

@@ -22,6 +22,7 @@ from ..model.simulate import (
     simulate,
     simulate_unchecked,
 )
+from ..names import checked_substeps
 from ..params import Bounds, Parameters, check_parameters
 from ..saved import Model
 from .measured import holds_loop
@@ -126,7 +127,7 @@ class Problem(AbstractProblem):
         self.scale = jnp.asarray(scale, dtype=jnp.float64)
         self.output = kind.name
         self.variant = variant
-        self.substeps = int(substeps)
+        self.substeps = checked_substeps(substeps)
         self.sigma = None if sigma is None else jnp.asarray(float(sigma), dtype=jnp.float64)
         self.priors = tuple(priors)
         self._check_priors()
