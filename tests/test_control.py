@@ -479,7 +479,9 @@ def test_a_reference_beyond_the_stroke_is_reported_with_where():
                                                     samples_per_period=8),
                         current_limit=LIMIT), "sampled too coarsely"),
     (lambda: sinusoidal_reference(100.0, 15e-6, 37e-6, samples_per_period=4),
-     "samples_per_period must be an integer >= 8"),
+     "samples_per_period must be an integer in [8, 5e+07]"),
+    (lambda: sinusoidal_reference(100.0, 15e-6, 37e-6, samples_per_period=10**9),
+     "got 1000000000"),  # (refused before 7 GB are allocated)
     (lambda: sinusoidal_reference(-1.0, 15e-6, 37e-6), "frequency must be in"),
     (lambda: multitone_reference(100.0, [10e-6], 37e-6, harmonics=3),
      "harmonics must be a 1-D sequence (one value per tone)"),

@@ -16,6 +16,7 @@ import numpy as np
 
 from .._typing import Array, Float
 from ..actuator import Actuator
+from ..drive import MAX_SAMPLES
 
 #: Fewest samples a reference may have (per period for a periodic one).
 MIN_SAMPLES = 8
@@ -96,9 +97,10 @@ def _check_displacement(y: np.ndarray) -> None:
 
 
 def _check_sampling(samples_per_period) -> int:
-    if int(samples_per_period) != samples_per_period or samples_per_period < MIN_SAMPLES:
-        raise ValueError(f"samples_per_period must be an integer >= {MIN_SAMPLES}; got "
-                         f"{samples_per_period!r}.")
+    if int(samples_per_period) != samples_per_period or not \
+            MIN_SAMPLES <= samples_per_period <= MAX_SAMPLES:
+        raise ValueError(f"samples_per_period must be an integer in [{MIN_SAMPLES}, "
+                         f"{MAX_SAMPLES:.0e}]; got {samples_per_period!r}.")
     return int(samples_per_period)
 
 
