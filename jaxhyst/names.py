@@ -2,6 +2,8 @@
 that ``jaxhyst --help`` stays fast). `jaxhyst.identify` maps each name to its object and
 the tests check that the tables agree."""
 
+import operator
+
 #: Local solvers by name (`jaxhyst.identify.SOLVERS` holds their factories).
 SOLVER_NAMES = ("lm", "indirect_lm", "dogleg", "lma", "tra", "bfgs")
 
@@ -28,8 +30,6 @@ DEFAULT_SUBSTEPS = 2
 def checked_substeps(substeps) -> int:
     """``substeps`` as an int (a whole number >= 1: a Python or NumPy integer), else a
     one-line ``ValueError``."""
-    import operator
-
     try:
         n = None if isinstance(substeps, bool) else operator.index(substeps)
     except TypeError:
@@ -37,6 +37,7 @@ def checked_substeps(substeps) -> int:
     if n is None or n < 1:
         raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
     return n
+
 
 #: Output kinds that see the magnetization only (`jaxhyst.identify.outputs`: their
 #: ``magnetic_only``), for the command line, which decides before JAX is imported.
