@@ -182,6 +182,21 @@ def test_a_population_in_blocks_equals_the_whole_vmap():
         vmap_blocked(one, 18, block=0)
 
 
+def test_a_drive_stepping_over_the_materials_knee_is_warned_of_not_silently_beyond_ms():
+    """The accuracy screen looks at the field's steps against its range: 1 MA/m at 200
+    samples a period moves < 1 % of it per substep, but steps over the whole knee of a
+    material with a = 14 A/m in one sample, and M overshoots saturation hundreds of
+    times (the CLI printed max |M|/Ms 337 without a word). Beyond Ms the check runs."""
+    from jaxhyst.model.accuracy import SamplingWarning
+
+    p = jh.Parameters(Ms=3.2e5, lambda_s=0.0, a=14.4, k=12.0, alpha=1.2e-5, c=0.5, E=1.0,
+                      Kz=1.0, Mz=1.0, Cz=0.0)
+    drive = jh.sinusoidal_field(100.0, 1e6, samples_per_period=200)
+    with pytest.warns(SamplingWarning, match="too large to say how many substeps"):
+        sim = jh.simulate(p, jh.Actuator(1.0, 1.0), drive, jh.ClassicJA())
+    assert float(jnp.max(jnp.abs(sim.M))) > 1.001 * 3.2e5  # (what it warns of)
+
+
 def test_no_nan_anywhere_in_table1_box():
     _, _, act, drive = CASES[0]
     lo = jh.TABLE1_BOUNDS.lower.to_array()

@@ -31,7 +31,7 @@ def add_parser(sub) -> None:
     parser.add_argument("--actuator",
                         help="actuator1 (default), actuator2 or a JSON file {Ar, lr, n, Hb}")
     parser.add_argument("--model", help="a saved model (identify --save-model) instead of "
-                        "--params/--actuator/--variant/--substeps/--eddy/--excess/--lag/--relax; a "
+                        "--params/--actuator/--variant/--eddy/--excess/--lag/--relax; a "
                         "condition law (identify --vary) is evaluated at --frequency, "
                         "--temperature and the drive's amplitude")
     parser.add_argument("--temperature", type=FINITE, help="with --model: the temperature, "
@@ -70,7 +70,8 @@ def add_parser(sub) -> None:
     parser.add_argument("--samples-per-period", type=POSITIVE_INT,
                         help="samples per drive period (default 200)")
     parser.add_argument("--substeps", type=POSITIVE_INT,
-                        help=f"RK4 substeps per sample (default {DEFAULT_SUBSTEPS})")
+                        help=f"RK4 substeps per sample (default {DEFAULT_SUBSTEPS}, or "
+                        "the --model's)")
     parser.add_argument("--variant", choices=VARIANTS,
                         help="Jiles–Atherton form (default energy: the paper's)")
     parser.add_argument("--cells", type=POSITIVE_INT,
@@ -204,10 +205,10 @@ def _model(args, record):
                            f"or preisach); --variant {args.variant or 'energy'} has none.")
         return (parameters_arg(args.params or args.preset), None, form,
                 args.substeps or DEFAULT_SUBSTEPS, _losses(args))
-    given = [o for o in ("params", "actuator", "variant", "cells", "substeps", "eddy",
-                         "excess", "lag", "relax") if getattr(args, o) is not None]
+    given = [o for o in ("params", "actuator", "variant", "cells", "eddy", "excess",
+                         "lag", "relax") if getattr(args, o) is not None]
     if given:
-        raise CLIError(f"--model holds the parameters, actuator, form, substeps and losses; "
+        raise CLIError(f"--model holds the parameters, actuator, form and losses; "
                        f"leave out --{', --'.join(given)}.")
     from .models import model_at, read_model
 
@@ -235,7 +236,7 @@ def _model(args, record):
                        "field (--field-amplitude, or --drive with an H column) or by B "
                        "(--flux-amplitude).")
     return (model.params, model.actuator, model.variant,
-            model.substeps, model.losses)
+            args.substeps or model.substeps, model.losses)
 
 
 def _run_flux(args, params, variant, substeps, losses) -> int:

@@ -32,6 +32,11 @@ FLUX_ACCURACY = 1e-4
 SCREEN_STEP = 0.01
 
 
+#: An estimated error above this (relative) is beyond RK4's asymptotic range: the
+#: substeps that would bring it within `ACCURACY` cannot be sized from it.
+ROUGH = 0.1
+
+
 class SamplingWarning(UserWarning):
     """The record is sampled too coarsely for the RK4 substeps asked for: the estimated
     error exceeds the documented accuracy."""
@@ -130,6 +135,12 @@ def sampling_message(error: float, substeps: int, what: str = "the signal") -> s
     it is within `ACCURACY`."""
     if not error > ACCURACY:
         return None
+    if error > ROUGH:
+        return (f"the sampling is too coarse for {int(substeps)} RK4 substeps: the error of "
+                f"{what} is estimated at {error:.2g} of its size (documented: <= "
+                f"{ACCURACY:g}), too large to say how many substeps would do: sample the drive "
+                "much more finely, or raise the substeps (substeps=, --substeps) many times "
+                "and check again.")
     need = substeps_for(error, substeps)
     return (f"the sampling is too coarse for {int(substeps)} RK4 substeps: the error of "
             f"{what} is estimated at {error:.2g} of its size (documented: <= {ACCURACY:g}); "

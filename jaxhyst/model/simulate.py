@@ -312,6 +312,10 @@ def simulate(
             "instead of raising.)")
     # (a material sample's y is a placeholder: its error is nobody's)
     signals = ("M",) if actuator.magnetization_only else ("M", "y")
+    if fine is None and np.max(np.abs(np.asarray(sim.M))) > 1.001 * float(params.Ms):
+        # (beyond saturation, which no form reaches: a material far sharper than the
+        # drive's steps, which the screen on the field's range alone let through)
+        fine = _simulate_jit(params, actuator, drive, variant, 2 * substeps, losses)
     if fine is not None:  # (at twice the substeps)
         name, error = _worst(signals, lambda n: richardson_error(sim.observed(n),
                                                                  fine.observed(n)))
