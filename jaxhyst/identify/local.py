@@ -64,11 +64,10 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
         leaf, shape = jax.tree.leaves(start)[0], space.shapes[0]
         z = jax.vmap(space.z_from_params)(start) if jnp.ndim(leaf) > len(shape) else \
             space.z_from_params(start)
-        if is_concrete(z) and not np.all(np.isfinite(np.asarray(z))):
-            at = np.argwhere(~np.isfinite(np.asarray(z)))[0]
-            where = f" of start {at[0]}" if z.ndim == 2 else ""
-            raise ValueError(f"the start's {space.names[at[-1]]}{where} is not a finite "
-                             "number; give every free parameter a value.")
+        bad = _first_nonfinite(space, z) if is_concrete(z) else None
+        if bad is not None:
+            raise ValueError(f"the start's {bad[1]} is not a finite number; give every free "
+                             "parameter a value.")
         return z
     if isinstance(start, dict) and tree_kind and space.treedef.node_data()[0] is not dict:
         return _z_of_values(space, start)
@@ -82,11 +81,10 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
     u_np = np.asarray(u)
     if u_np.size == 0:
         raise ValueError(f"a batch of starts needs at least one start; got shape {u.shape}.")
-    if not np.all(np.isfinite(u_np)):
-        at = np.argwhere(~np.isfinite(u_np))[0]
-        where = f" of start {at[0]}" if u.ndim == 2 else ""
+    bad = _first_nonfinite(space, u_np)
+    if bad is not None:
         raise ValueError(f"Box coordinates u of a start must be finite numbers in [0, 1]; "
-                         f"got {u_np[tuple(at)]} for {space.names[at[-1]]}{where}.")
+                         f"got {bad[0]} for {bad[1]}.")
     if not np.all((u_np >= 0) & (u_np <= 1)):
         kind = (f"; to start from values of the parameters give {_kind(space)}"
                 if tree_kind else "")
@@ -95,6 +93,16 @@ def start_z(problem: AbstractProblem, start) -> jax.Array:
             f"box coordinates, one per free parameter: {', '.join(space.names)}); got "
             f"values from {u_np.min():.6g} to {u_np.max():.6g}{kind}.")
     return _z_from_u_jit(u)
+
+
+def _first_nonfinite(space, z):
+    """(the value, "name" or "name of start k") of the first non-finite entry of starts
+    ``z`` (shape (n,) or (K, n), one column per free parameter), or None."""
+    z = np.asarray(z)
+    if np.all(np.isfinite(z)):
+        return None
+    at = np.argwhere(~np.isfinite(z))[0]
+    return z[tuple(at)], space.names[at[-1]] + (f" of start {at[0]}" if z.ndim == 2 else "")
 
 
 def _z_of_values(space, values: dict) -> jax.Array:
