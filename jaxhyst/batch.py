@@ -178,7 +178,8 @@ def run_item(item: dict, out: str) -> dict:
     if isinstance(held, dict) and held.get("kept"):
         rows = held["forms"][held["kept"]]["rows"]
         row["kept_form"] = held["kept"]
-        row["held_out_rms"] = sum(r["rms"] for r in rows) / max(len(rows), 1)
+        rms = [r["rms"] for r in rows]  # (None: a fold without a prediction)
+        row["held_out_rms"] = sum(rms) / len(rms) if rms and None not in rms else None
     return row
 
 

@@ -201,6 +201,17 @@ def check_value(name: str, value, what: str) -> float:
     return v
 
 
+def shown_value(x) -> str:
+    """``x`` for a message: a number as a number (``64294.2``, not ``Array(…)``), the
+    first three of an array's, anything else as its repr."""
+    try:
+        v = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        return repr(x)
+    return f"{float(v):g}" if v.ndim == 0 else repr([float(f"{e:.6g}") for e in
+                                                    v.ravel()[:3]])
+
+
 def readable_value(x) -> np.ndarray | None:
     """``x`` as a NumPy array where its value can be read: a concrete value, or the value
     under a transformation called directly (``jax.grad(f)(x)`` without ``jax.jit``); None

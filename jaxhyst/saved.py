@@ -40,7 +40,13 @@ from .model.jiles_atherton import (
 )
 from .model.laws import ConditionModel, Conditions, NearestCondition
 from .model.losses import LOSS_NAMES, Losses
-from .model.paths import model_parameters, model_values, own_parameters, split_parameters
+from .model.paths import (
+    model_parameters,
+    model_values,
+    own_parameters,
+    split_parameters,
+    unphysical,
+)
 from .model.play import AbstractPlayForm, PlayJA, PreisachJA
 from .model.simulate import Simulation, simulate, simulate_unchecked
 from .names import DEFAULT_SUBSTEPS
@@ -126,8 +132,17 @@ class Model(eqx.Module):
                          jax.tree.map(pick, self.variant), self.substeps,
                          None if self.losses is None else jax.tree.map(pick, self.losses))
         values = self.law.evaluate(self.coefficients, self.law.feature_values(conditions))
-        params, losses, form = split_parameters(model_parameters(
-            {n: v[0] for n, v in values.items()}, self.variant, self.losses is not None))
+        tree = model_parameters({n: v[0] for n, v in values.items()}, self.variant,
+                                self.losses is not None)
+        why = unphysical(tree) if is_concrete(tree) else None
+        if why is not None:
+            units = {"frequency": "Hz", "temperature": "°C",
+                     "amplitude": self.law._unit("log_amplitude")}
+            where = ", ".join(f"{k} {v:g} {units[k]}" for k, v in given.items()
+                              if v is not None)
+            raise ValueError(f"the model's condition law does not reach {where}: there it "
+                             f"gives {why}; evaluate it nearer the fitted conditions.")
+        params, losses, form = split_parameters(tree)
         return Model(params, self.actuator, self.variant if form is None else form,
                      self.substeps, losses)
 

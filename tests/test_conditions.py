@@ -168,6 +168,11 @@ def test_smooth_in_frequency_recovers_its_generating_functions_and_predicts_a_he
                              pad_to=(drive.run_in + 3, drive.n_observed + 5))
     assert problem.held_out_errors(res.params, padded, jh.Conditions(  # (padding: no sample)
         frequency=[f_held])) == [pytest.approx(err_smooth, rel=1e-9)]
+    far = {**dict(res.params), "k": 1e12}  # (k beyond any material's at every frequency)
+    with pytest.warns(jh.ConditionWarning, match="held-out record 0: the condition law "
+                                                 "gives k = .* no prediction"):
+        assert problem.held_out_errors(far, held_records, jh.Conditions(
+            frequency=[f_held])) == [np.inf]
     # … against a fit at the nearest measured frequency (200 Hz), used as it is
     near = 1
     single = jh.Problem(data[fit_idx.index(near)], loops[near][0], NO_ACTUATOR,

@@ -470,3 +470,49 @@ def test_loops_no_form_carries_across_keep_the_nearest_loops_fit_and_predict_by_
     for row, fitted in zip(predicted[0], (1, 3), strict=True):  # (44 and 220 A/m nearest)
         fold = held["forms"][best]["rows"][fitted]["rms"]
         assert row["rms"] < fold, (row, fold)
+
+
+def test_a_law_that_gives_no_material_at_a_held_out_loop_is_a_row_not_an_error(tmp_path):
+    """A fold's condition law extrapolated to its held-out loop may give parameters no
+    material has (here the cells' spread far beyond [0, 10]): that row has no prediction
+    (inf, said in the table, None in the result file), the comparison goes on, and
+    `predict` at such a loop stops with one line naming the loop and the value —
+    it used to end the whole command with the simulator's "Parameter … must lie in",
+    as if the user had typed the value."""
+    from jaxhyst.cli import build_problem
+    from jaxhyst.cli.heldout import _predict, held_out_text
+    from jaxhyst.cli.predictions import BeyondLaw, expected_error, predict_loops, where_text
+    from jaxhyst.cli.spec import read_data
+    from jaxhyst.io import bounds_to_json
+
+    data = tmp_path / "loops.csv"
+    _write(data)
+    loops = read_data(str(data))
+    spec = {"data": str(data), "columns": None, "loop": None, "output": None,
+            "actuator": NO_ACTUATOR.to_dict(), "bounds": bounds_to_json(jh.TABLE1_BOUNDS),
+            "fixed": {}, "run_in_periods": 1, "substeps": 1, "variant": "play",
+            "cells": 8, "joint": True, "per_loop": [], "vary": "spread:log_amplitude"}
+    problem = build_problem(spec, loops)
+    names = problem.space.names
+    assert "spread:log_amplitude" in names
+    values = {"Ms": 3.5e5, "a": 25.0, "k": 30.0, "alpha": 1e-5, "c": 0.3, "spread": 2.0,
+              "spread:log_amplitude": -3.0}  # (spread ∝ Hm^-3: 20 at 40 A/m)
+    params = problem.space.params_from_free(np.array([values[n] for n in names]))
+    with pytest.raises(BeyondLaw, match=r"loop 0 \(peak field 40 A/m\): .*spread") as err:
+        predict_loops(spec, problem, params, [loops[0]])
+    assert "\n" not in str(err.value) and "Parameter" not in str(err.value)
+    row = _predict(spec, problem, params, loops[0])
+    assert row["rms"] == np.inf and "spread" in row["no_prediction"]
+    assert np.all(np.isnan(row["_curve"][0])) and row["data_scale"] > 0
+    row = {**{k: v for k, v in row.items() if k != "_curve"}, "loop": 0,
+           "outcome": "successful"}
+    held = {"forms": {"play": {"rows": [row], "score": np.inf, "complete": True,
+                               "nearest_score": None}},
+            "kept": "play", "partial": False, "stopped_short": []}
+    assert "NO PREDICTION: the law gives spread" in held_out_text(held)
+    saved = json.loads(json.dumps(jh.io.json_safe({"leave_one_out": held})))
+    assert saved["leave_one_out"]["forms"]["play"]["rows"][0]["rms"] is None
+    expected = expected_error(saved)
+    assert expected["interpolated"] == np.inf
+    assert "no error to expect" in where_text({"extrapolation": "",
+                                               "expected_relative_error": np.inf})

@@ -158,6 +158,13 @@ def test_a_condition_law_is_saved_and_evaluated_at_a_new_amplitude(tmp_path):
         back.at(frequency=50.0)
     with pytest.raises(ValueError, match="has no condition law"):
         jh.Model(p, jh.ACTUATOR1).at(amplitude=9e3)
+    # far enough out a law gives no material (a ∝ A^-8: at 1 A/m far beyond 1e9 A/m):
+    # one line naming the condition and the value, not a model of nonsense
+    steep = problem.model({**coefficients, "a:log_amplitude": -8.0})
+    with pytest.warns(jh.ConditionWarning), \
+            pytest.raises(ValueError, match=r"does not reach amplitude 1 A/m: there it "
+                                            r"gives a = .* \(a must lie in \[1e-6, 1e9\]"):
+        steep.at(amplitude=1.0)
 
 
 def test_a_nearest_condition_model_is_saved_and_gives_the_nearest_loops_set(tmp_path,

@@ -157,13 +157,22 @@ def _predict(spec, problem, params, loop):
     """(rms, max |error|, max |data|, extrapolated-warnings) of ``loop`` predicted."""
     import warnings
 
+    import numpy as np
+
     from jaxhyst.identify import ConditionWarning
 
-    from .predictions import error_summary, predict_loops
+    from .predictions import BeyondLaw, error_summary, predict_loops
+    from .spec import loop_signal
 
     with warnings.catch_warnings(record=True) as caught:  # (an extrapolation is part of
         warnings.simplefilter("always", ConditionWarning)  # the row instead)
-        predicted, data = predict_loops(spec, problem, params, [loop])[0]
+        try:
+            predicted, data = predict_loops(spec, problem, params, [loop])[0]
+        except BeyondLaw as err:  # (the fold's law gives no material there: no prediction)
+            data = np.asarray(loop.signals[loop_signal(spec, loop, spec.get("output"))])
+            return {"rms": math.inf, "max_abs": math.inf,
+                    "data_scale": float(np.max(np.abs(data))), "extrapolated": [],
+                    "no_prediction": err.reason, "_curve": (np.full(data.shape, np.nan), data)}
     beyond = [" ".join(str(w.message).split()) for w in caught
               if issubclass(w.category, ConditionWarning)]
     for w in caught:
@@ -349,6 +358,8 @@ def held_out_text(held: dict) -> str:
                     if "nearest_rms" in r else
                     f" (loop {r['nearest_loop']}'s fit)" if form == NEAREST else "")
             flag = "" if r["outcome"] == "successful" else f" [{r['outcome']}]"
+            if r.get("no_prediction"):  # (its law gives no material there)
+                flag += f" [NO PREDICTION: {r['no_prediction']}]"
             cells.append(f"loop {r['loop']}: {r['rms']:.4g}{near}{ratio}{flag}")
         score = (f"score {t['score']:.4g}" if t["score"] is not None else
                  "incomplete")

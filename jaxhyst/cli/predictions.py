@@ -4,6 +4,8 @@ prediction of each loop and its error."""
 
 from __future__ import annotations
 
+import math
+
 from .problems import loop_conditions
 from .spec import CLIError, loop_drive, loop_field, read_data, signal_column
 
@@ -71,13 +73,14 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     for k, (lp, drive) in enumerate(zip(loops, drives, strict=True)):
         if isinstance(fitted, jh.ConditionProblem):
             try:
-                tree = fitted.at(params, loop_conditions({**spec, "data": source or
-                                                          spec["data"]}, [lp], actuator,
-                                                         conditions))
+                at = loop_conditions({**spec, "data": source or spec["data"]}, [lp],
+                                     actuator, conditions)
+                tree = fitted.at(params, at)
             except ValueError as err:
                 raise CLIError(f"{source or spec['data']}: {err} (a column, or --frequency "
                                "and --temperature)") from None
             tree = jax.tree.map(lambda x: np.asarray(x)[0], tree)
+            _physical_at(tree, lp, at)
         elif nearest is not None:  # (the nearest fitted loop's set)
             tree = jax.tree.map(lambda x, i=int(by[k]): np.asarray(x)[i], params)
         elif np.ndim(split_parameters(params)[0].Ms) == 1:
@@ -96,6 +99,34 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
         data = lp.signals.get(name)
         out.append((predicted, None if data is None else np.asarray(data)))
     return out
+
+
+class BeyondLaw(CLIError):
+    """A condition law that gives, at a loop's conditions, parameters outside their
+    physical range: that loop has no prediction (a leave-one-out row says so, with
+    ``reason``; `predict` stops with this one line)."""
+
+    def __init__(self, message: str, reason: str):
+        super().__init__(message)
+        self.reason = reason
+
+
+def _physical_at(tree, loop, at) -> None:
+    """Raise `BeyondLaw` where the parameters ``tree`` a condition law gives at ``loop``'s
+    conditions ``at`` (`jaxhyst.Conditions` of that one loop) are not physical — a
+    parameter, a loss coefficient or the form's own (e.g. the spread beyond [0, 10])."""
+    from jaxhyst.model.paths import unphysical
+
+    reason = unphysical(tree)
+    if reason is None:
+        return
+    shown = [f"{name} {values[0]:.4g} {unit}" for name, values, unit in
+             (("peak field", at.amplitude, "A/m"), ("frequency", at.frequency, "Hz"),
+              ("temperature", at.temperature, "°C")) if values is not None]
+    raise BeyondLaw(f"loop {loop.index} ({', '.join(shown)}): the fitted condition law "
+                    f"does not reach it — there it gives {reason}; no prediction (predict "
+                    "loops nearer the fitted conditions)",
+                    f"the law gives {reason} there")
 
 
 def model_to_save(spec, problem, result):
@@ -165,7 +196,8 @@ def expected_error(saved) -> dict | None:
     rows = held["forms"][held["kept"]]["rows"]
     if not rows:
         return None
-    rel = [r["rms"] / r["data_scale"] for r in rows]
+    rel = [r["rms"] / r["data_scale"] if r.get("rms") is not None else math.inf
+           for r in rows]  # (None: a fold whose law gave no material there, inf saved)
     inside = [x for x, r in zip(rel, rows, strict=True) if not r.get("outside")]
     reach: dict | None = {} if all("beyond" in r for r in rows) else None
     for r in rows if reach is not None else ():
@@ -258,8 +290,11 @@ def where_text(row) -> str:
             "; within the fitted loops' conditions" if where == "" else
             "; the fitted loops' conditions are not known (a model saved without them)")
     exp = row.get("expected_relative_error")
-    if exp is not None:
+    if exp is not None and math.isfinite(exp):
         text += f"; expected from the leave-one-out folds: {100 * exp:.2g} % of max|data|"
+    elif exp is not None:
+        text += ("; no error to expect from the leave-one-out folds: a fold's law gave "
+                 "no material at its held-out loop")
     for name, (far, reach) in (row.get("beyond_folds") or {}).items():
         how = "{:.3g} K" if name == "temperature" else "×{:.3g}"
         text += (f"; further beyond the fitted {name} ({how.format(far)}) than any "

@@ -15,6 +15,7 @@ interpolates between amplitudes, it does not extrapolate beyond them.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 
 import equinox as eqx
@@ -34,7 +35,7 @@ from ..model.laws import (  # (the law sits below the problems and Model; re-exp
     condition_distance,
 )
 from ..model.losses import LOSS_LIMITS, LOSS_NAMES
-from ..model.paths import OWN_NAMES, model_parameters, own_parameters
+from ..model.paths import OWN_NAMES, model_parameters, own_parameters, unphysical
 from ..params import NAMES, Bounds
 from .flux import FluxProblem
 from .problem import AbstractProblem, ResidualGroup
@@ -180,10 +181,21 @@ class ConditionProblem(AbstractProblem):
                         conditions: Conditions) -> list[float]:
         """The rms error (model − data, each record's unit) of every record of ``records``
         (a problem of the same kind over records that were not fitted: their data and
-        drives) predicted at their ``conditions``: the held-out error of a prediction."""
-        residuals = records.group_residuals(self.at(coefficients, conditions))
-        return [float(np.sqrt(np.mean(g.observed(r) ** 2)))  # (the padding dropped)
-                for g, r in zip(records.groups, residuals, strict=True)]
+        drives) predicted at their ``conditions``: the held-out error of a prediction. A
+        record where the law gives no material (a parameter outside its physical range:
+        `unphysical`) has no prediction: inf, and a `ConditionWarning` naming it and the
+        value."""
+        params = self.at(coefficients, conditions)
+        residuals = records.group_residuals(params)
+        errors = [float(np.sqrt(np.mean(g.observed(r) ** 2)))  # (the padding dropped)
+                  for g, r in zip(records.groups, residuals, strict=True)]
+        for i in range(len(errors)):
+            why = unphysical(jax.tree.map(lambda x, i=i: np.asarray(x)[i], params))
+            if why is not None:
+                warnings.warn(f"held-out record {i}: the condition law gives {why} there "
+                              "— no prediction (error inf)", ConditionWarning, stacklevel=2)
+                errors[i] = np.inf
+        return errors
 
     def group_residuals(self, params) -> tuple:
         return self.records.group_residuals(self.per_record(params))

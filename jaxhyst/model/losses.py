@@ -46,7 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._typing import Real
-from ..params import is_concrete
+from ..params import is_concrete, shown_value
 
 #: The loss coefficients by name, in the order of `Losses`' fields.
 LOSS_NAMES = ("eddy", "excess", "lag", "relax")
@@ -99,7 +99,7 @@ class Losses(eqx.Module):
                     hint = ("an hour is a unit mistake" if name in ("lag", "relax") else
                             "a 0.1 m copper lamination's eddy coefficient is 5e4")
                     raise ValueError(f"Losses.{name} must lie in [0, {top:g}] "
-                                     f"({LOSS_UNITS[name]}; {hint}); got {value!r}.")
+                                     f"({LOSS_UNITS[name]}; {hint}); got {shown_value(value)}.")
         self.eddy = jnp.asarray(eddy, dtype=jnp.float64)
         self.excess = jnp.asarray(excess, dtype=jnp.float64)
         self.lag = jnp.asarray(lag, dtype=jnp.float64)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 
-from ..params import MU0, NAMES, UNITS, Parameters
+from ..params import MU0, NAMES, PHYSICAL_RULES, UNITS, Parameters
 from .drivers import FluxDriven, MagnetizationDriven
 from .dynamic import RateDependentPath, relaxed
 from .jiles_atherton import AbstractJAVariant
@@ -160,3 +160,32 @@ def hysteresis_path(form, p, t, drive, *, substeps: int, losses=None, driver: st
     M0 = inner.magnetization(inner.initial_state(theta, drive[0]))
     Y_sub, dY = relaxed(losses.relax, t, Y_sub, Q, S, M0)
     return Y_sub, k_sub, h, dY
+
+
+def unphysical(params) -> str | None:
+    """Why a model's parameter pytree (`split_parameters`; values that can be read, one
+    set) is no material's — the first parameter outside its physical range
+    (`jaxhyst.params.PHYSICAL_RULES`), loss coefficient or built-in form's own parameter
+    out of range, e.g. "spread = 64.3 (spread must lie in [0, 10] …)" — or None. For
+    what a condition law gives far from its fitted conditions (`jaxhyst.Model.at`, the
+    command line's predictions), which no constructor checks."""
+    import numpy as np
+
+    p, losses, form = split_parameters(params)
+    for name in NAMES:
+        v = float(np.asarray(getattr(p, name)))
+        rule, words = PHYSICAL_RULES.get(name, (None, ""))
+        if not np.isfinite(v) or (rule is not None and not rule(np.float64(v))):
+            cut = words.rfind(" (")  # (the rule without its explanation, if it has one)
+            rule_only = words[:cut] if words.endswith(")") and cut > words.find("]") \
+                else words
+            return f"{name} = {v:.4g} {UNITS[name]} ({name} {rule_only})"
+    try:  # (built again: their constructors check the ranges)
+        if losses is not None:
+            Losses(**{n: getattr(losses, n) for n in LOSS_NAMES})
+        if type(form) in (PlayJA, PreisachJA):
+            type(form)(**{n: getattr(form, n) for n in form.own_parameters},
+                       cells=form.cells)
+    except ValueError as err:
+        return str(err).rstrip(".")
+    return None

@@ -59,7 +59,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._typing import Real
-from ..params import MU0, Parameters, is_concrete
+from ..params import MU0, Parameters, is_concrete, shown_value
 from .langevin import langevin_and_slope
 from .timeloop import AbstractPathForm, Interval
 
@@ -333,7 +333,7 @@ def _check_spread(spread):
         s = np.asarray(spread, dtype=np.float64)
         if not (np.all(np.isfinite(s)) and np.all(s >= 0) and np.all(s <= 10)):
             raise ValueError(f"spread must lie in [0, 10] (the log-normal width of the "
-                             f"pinning fields); got {spread!r}.")
+                             f"pinning fields); got {shown_value(spread)}.")
     return jnp.asarray(spread, dtype=jnp.float64)
 
 
@@ -383,7 +383,7 @@ class PreisachJA(AbstractPlayForm):
             v = np.asarray(a_rev, dtype=np.float64)
             if not (np.all(np.isfinite(v)) and np.all(v >= 1e-6) and np.all(v <= 1e9)):
                 raise ValueError(f"a_rev must lie in [1e-6, 1e9] A/m (the reversible "
-                                 f"component's Langevin width); got {a_rev!r}.")
+                                 f"component's Langevin width); got {shown_value(a_rev)}.")
         self.a_rev = jnp.asarray(a_rev, dtype=jnp.float64)
         self.cells = _check_cells(cells)
 
