@@ -161,6 +161,8 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     (["identify", "{ok}", "--out", "{ok}/r.json"], 2, "cannot write in"),
     (["identify", "{ok}", "--out", "{dir}"], 2, "is a directory; give a file name"),
     (["identify", "{ok}", "--per-loop", "c"], 2, "--per-loop needs --joint"),
+    (["identify", "{ok}", "--joint", "--per-loop", "kk,c"], 2,
+     "--per-loop 'kk,c': 'kk' is not a parameter; names are"),
     (["simulate", "--amplitude", "inf"], 2, "--amplitude"),
     (["simulate", "--field-amplitude", "1e300"], 2, "beyond 1e+09 A/m"),
     (["simulate", "--params", "{params_bad}"], 2, "need the ten names"),
@@ -305,6 +307,20 @@ def test_malformed_python_api_inputs(files):
             call()
         msg = str(info.value)
         assert fragment in msg and "\n" not in msg, (i, msg)
+
+
+def test_a_numpy_integer_is_a_number_of_substeps_everywhere():
+    """One check of the substeps for simulate, simulate_flux and the problems: a NumPy
+    integer (what an array's element or np.int64(…) gives) is accepted by each, as the
+    problems already accepted it, and a bool or a fraction refused by each."""
+    drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=50)
+    flux = jh.sinusoidal_flux(100.0, 0.3, samples_per_period=50)
+    for run in (lambda s: jh.simulate(jh.TABLE1_TRUE, jh.ACTUATOR1, drive, substeps=s).y,
+                lambda s: jh.simulate_flux(jh.TABLE1_TRUE, flux, substeps=s).H):
+        np.testing.assert_array_equal(run(np.int64(2)), run(2))
+        for bad in (True, 1.5, 0):
+            with pytest.raises(ValueError, match="substeps must be an integer >= 1"):
+                run(bad)
 
 
 def test_a_loss_density_needs_a_positive_frequency_and_whole_periods():

@@ -44,6 +44,7 @@ from .spec import (
     fixed_arg,
     note,
     parameters_arg,
+    per_loop_arg,
     print_result,
     read_data,
     warn,
@@ -200,8 +201,7 @@ def check_options(args) -> dict:
             "fixed": fixed_arg(args.fix, known),
             "run_in_periods": args.run_in_periods, "substeps": args.substeps,
             "variant": None, "cells": args.cells, "losses": loss_names(args.losses),
-            "joint": args.joint,
-            "per_loop": [n.strip() for n in (args.per_loop or "").split(",") if n.strip()],
+            "joint": args.joint, "per_loop": per_loop_arg(args.per_loop),
             "vary": args.vary, "vary_degree": args.vary_degree or 1,
             "driven_by": args.driven_by}
     check_flux_options(args)

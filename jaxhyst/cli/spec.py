@@ -141,6 +141,19 @@ def bounds_arg(spec: str | None):
                                     extra=(*LOSS_PARAMETER_NAMES, *FORM_PARAMETER_NAMES))
 
 
+def per_loop_arg(text) -> list:
+    """--per-loop ``'a,k,c'`` → ``["a", "k", "c"]`` (the names --fix takes)."""
+    from jaxhyst.params import NAMES
+
+    names = (*NAMES, *LOSS_PARAMETER_NAMES, *FORM_PARAMETER_NAMES)
+    out = [n.strip() for n in (text or "").split(",") if n.strip()]
+    unknown = [n for n in out if n not in names]
+    if unknown:
+        raise CLIError(f"--per-loop {text!r}: {unknown[0]!r} is not a parameter; names are "
+                       f"{list(names)}.")
+    return out
+
+
 def fixed_arg(items, params) -> dict:
     """--fix: ``{name: value}`` (the ten, the loss coefficients, a form's spread)."""
     from jaxhyst.params import NAMES

@@ -45,7 +45,7 @@ import numpy as np
 from .._traces import kept_jit
 from .._typing import Array, Float, Signal
 from ..drive import UNIFORM_TOLERANCE, Drive, require_times
-from ..names import DEFAULT_SUBSTEPS
+from ..names import DEFAULT_SUBSTEPS, checked_substeps
 from ..params import MU0, Parameters, check_parameters, is_concrete, physically_valid
 from .accuracy import (
     FLUX_ACCURACY,
@@ -281,8 +281,7 @@ def simulate_flux(params: Parameters, drive: FluxDrive,
         raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess, lag, relax); got {losses!r}.")
     if losses is not None:
         require_times(drive)
-    if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
-        raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
+    substeps = checked_substeps(substeps)
     if jnp.ndim(drive.B) != 1:
         raise ValueError(f"simulate_flux takes one drive, but drive.B has shape "
                          f"{jnp.shape(drive.B)}; for a batch of drives use jax.vmap("

@@ -32,7 +32,7 @@ from .._traces import kept_jit
 from .._typing import Array, Bool, Float, Signal
 from ..actuator import Actuator
 from ..drive import Drive, require_times
-from ..names import DEFAULT_SUBSTEPS
+from ..names import DEFAULT_SUBSTEPS, checked_substeps
 from ..params import NAMES, Parameters, check_parameters, is_concrete, physically_valid
 from ..sharding import vmap_blocked
 from ._batching import blocked_under_vmap
@@ -228,8 +228,7 @@ def _check_inputs(params, actuator, drive, variant, substeps, losses=None) -> No
         raise TypeError(f"variant must be a model form (a Jiles–Atherton variant such as "
                         f"EnergyBasedJA(), or a form of pinning cells such as PlayJA()); got "
                         f"{variant!r}.")
-    if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
-        raise ValueError(f"substeps must be an integer >= 1; got {substeps!r}.")
+    checked_substeps(substeps)
     if losses is not None and not isinstance(losses, Losses):
         raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess, lag, relax) or None; got "
                         f"{losses!r}.")
@@ -292,6 +291,7 @@ def simulate(
     or `jaxhyst.simulate_batch`.
     """
     _check_inputs(params, actuator, drive, variant, substeps, losses)
+    substeps = checked_substeps(substeps)  # (a NumPy integer too: a Python int from here)
     _check_single(params, drive)
     if not is_concrete((params, actuator, drive, variant, losses)):  # (traced: no check)
         return _simulate_jit(params, actuator, drive, variant, substeps, losses)
