@@ -190,6 +190,29 @@ def _field_from_current(n, Hb, current):
     return _as_float(n) * _as_float(current) + _as_float(Hb)
 
 
+def _repeat_lag(H, span) -> int | None:
+    """The period (samples) of a record that repeats but does not end where it began (a
+    capture of 1.5 periods from any phase): the lag, after the record has moved 20 % of
+    its range away from itself, at which it first matches itself best within 1 % of its
+    range (rms, over at least 5 % of it and 8 samples), or None. Its run-in is then
+    whole periods ending in the phase the record starts in (copies of the whole record
+    would jump, and leave the model off its steady loop)."""
+    n, x = H.shape[0], H - np.mean(H)
+    f = np.fft.rfft(x, 2 * n)
+    r = np.fft.irfft(f * np.conj(f), 2 * n)[:n]  # Σ_i x[i + lag]·x[i]
+    c = np.concatenate([[0.0], np.cumsum(x * x)])
+    lags = np.arange(n)
+    msd = (c[n] - c[lags] + c[n - lags] - 2.0 * r) / (n - lags)  # mean (x[i+lag] − x[i])²
+    apart = np.flatnonzero(msd > (0.2 * span) ** 2)  # (first it must differ from itself)
+    ok = (lags > (apart[0] if apart.size else n)) & (n - lags >= max(8, n // 20)) & \
+        (msd <= (0.01 * span) ** 2)
+    if not np.any(ok):
+        return None
+    first = int(np.argmax(ok))  # (then the bottom of the first valley it matches in)
+    end = first + int(np.argmin(ok[first:])) if not np.all(ok[first:]) else n
+    return first + int(np.argmin(msd[first:end]))
+
+
 def drive_from_record(t: Float[ArrayLike, " T"] | None, H: Float[ArrayLike, " T"], *,
                       run_in_periods: int = 1, ramp_fraction: float = 0.25) -> Drive:
     """A `Drive` whose observed part is a measured record H(t) (A/m; t in s, or ``None``
@@ -201,7 +224,8 @@ def drive_from_record(t: Float[ArrayLike, " T"] | None, H: Float[ArrayLike, " T"
     of the record (the model starts demagnetized and follows its initial curve), then
     ``run_in_periods`` copies of the record (the transient after the ramp is discarded),
     with the record's mean time step. If the record is closed (last H within 1e-6 of the
-    range of the first), each copy omits the repeated end point.
+    range of the first), each copy omits the repeated end point; if it is not but
+    repeats (1.5 periods from any phase), each copy is its first period (`_repeat_lag`).
     """
     H = np.asarray(H, dtype=np.float64)
     if H.ndim != 1 or H.shape[0] < 4:
@@ -226,7 +250,8 @@ def drive_from_record(t: Float[ArrayLike, " T"] | None, H: Float[ArrayLike, " T"
     dt = float((t[-1] - t[0]) / (t.shape[0] - 1))
     span = float(np.ptp(H)) or 1.0
     closed = abs(H[-1] - H[0]) <= 1e-6 * span
-    period_H = H[:-1] if closed else H
+    lag = None if closed else _repeat_lag(H, span)
+    period_H = H[:-1] if closed else H if lag is None else H[:lag]
     n_ramp = max(2, int(round(ramp_fraction * H.shape[0]))) if ramp_fraction > 0 else 0
     pre = [H[0] * np.arange(n_ramp) / n_ramp] if n_ramp else []
     pre += [period_H] * int(run_in_periods)
