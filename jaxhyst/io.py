@@ -91,10 +91,6 @@ class Loop:
         return 0
 
 
-def _known() -> str:
-    return ", ".join(f"{n} [{q[2] or '1'}]" for n, q in QUANTITIES.items())
-
-
 def parse_column(name: str) -> tuple[str, float]:
     """Quantity and SI factor of a header entry (``H [kA/m]``, ``y_um``, ``B (T)``, ``t``)."""
     raw = name.strip()
@@ -109,9 +105,12 @@ def parse_column(name: str) -> tuple[str, float]:
                 qname, unit = head, tail
     q = _lookup(qname)
     if q is None:
-        raise DataError(f"column {raw!r} is not a known quantity; known columns: {_known()} "
-                        "(rename the column, or name the columns with --columns, '-' for "
-                        "one to skip).")
+        known = ", ".join(f"{n} [{v[2] or '1'}]" for n, v in QUANTITIES.items())
+        paired = _lookup(re.sub(r"[\s_]*\d+$", "", qname)) is not None  # (H1, B_2 …)
+        raise DataError(f"column {raw!r} is not a known quantity; known columns: {known} " +
+                        ("(loops side by side? put them one below the other, with a 'loop' "
+                         "column: loop,H,B) " if paired else "") + "(rename the column, or "
+                        "name the columns with --columns, '-' for one to skip).")
     _, desc, si, units = QUANTITIES[q]
     if unit is None:
         return q, 1.0

@@ -64,6 +64,7 @@ def _files(d):
         "bounds_spread": json.dumps({"spread": [0.1, 2.0]}).encode(),
         "utf16": "H,B\n1,2\n3\n".encode("utf-16"),  # read as text: then the ragged row
         "decimal_commas": b"H,B\n1,5,0,25\n2,5,0,5\n",
+        "side_by_side": b"H1 [A/m],B1 [T],H2 [A/m],B2 [T]\n1,0.1,2,0.2\n-1,-0.1,-2,-0.2\n",
     }.items():
         f = d / name
         f.write_bytes(content)
@@ -156,6 +157,7 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
      "--population 1: a hybrid's population needs at least 4"),
     (["identify", "{utf16}"], 2, "line 3: 1 values for 2 columns"),  # UTF-16 decoded
     (["identify", "{decimal_commas}"], 2, "decimal commas"),
+    (["identify", "{side_by_side}"], 2, "loops side by side? put them one below the other"),
     (["identify", "{ok}", "--starts", "0"], 2, "--starts"),
     (["identify", "{ok}", "--substeps", "1.5"], 2, "--substeps"),
     (["identify", "{ok}", "--out", "{ok}/r.json"], 2, "cannot write in"),
