@@ -162,6 +162,11 @@ def hysteresis_path(form, p, t, drive, *, substeps: int, losses=None, driver: st
     return Y_sub, k_sub, h, dY
 
 
+def _unit_text(name: str) -> str:
+    unit = PARAMETER_UNITS.get(name, "1")
+    return "" if unit == "1" else f" {unit}"
+
+
 def unphysical(params) -> str | None:
     """Why a model's parameter pytree (`split_parameters`; values that can be read, one
     set) is no material's — the first parameter outside its physical range
@@ -179,13 +184,15 @@ def unphysical(params) -> str | None:
             cut = words.rfind(" (")  # (the rule without its explanation, if it has one)
             rule_only = words[:cut] if words.endswith(")") and cut > words.find("]") \
                 else words
-            return f"{name} = {v:.4g} {UNITS[name]} ({name} {rule_only})"
-    try:  # (built again: their constructors check the ranges)
-        if losses is not None:
-            Losses(**{n: getattr(losses, n) for n in LOSS_NAMES})
-        if type(form) in (PlayJA, PreisachJA):
-            type(form)(**{n: getattr(form, n) for n in form.own_parameters},
-                       cells=form.cells)
-    except ValueError as err:
-        return str(err).rstrip(".")
+            return f"{name} = {v:.4g}{_unit_text(name)} ({name} {rule_only})"
+    own = [(n, lambda v, n=n: Losses(**{n: v})) for n in LOSS_NAMES if losses is not None]
+    if type(form) in (PlayJA, PreisachJA):
+        own += [(n, lambda v, n=n: type(form)(**{n: v})) for n in form.own_parameters]
+    for name, build in own:  # (each built alone: the constructors check the ranges)
+        value = getattr(losses if name in LOSS_NAMES else form, name)
+        try:
+            build(value)
+        except ValueError as err:
+            rule = str(err).partition("; got")[0].rstrip(".")
+            return f"{name} = {float(np.asarray(value)):.4g}{_unit_text(name)} ({rule})"
     return None
