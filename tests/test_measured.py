@@ -101,6 +101,19 @@ def test_a_record_of_one_and_a_half_periods_from_any_phase_starts_on_its_steady_
     np.testing.assert_array_equal(one.H[one.run_in - P:one.run_in], H[:P])
 
 
+def test_a_field_in_the_wrong_unit_is_named_by_the_permeability_it_implies():
+    """A loop whose H was read in kA/m as A/m implies a permeability beyond any material:
+    the box still follows the data, and a warning says what to check."""
+    from jaxhyst.identify.measured import LoopWarning
+
+    H, B = _clean_loop()
+    with pytest.warns(LoopWarning, match=r"reaches .* times the field .* is H in A/m"):
+        jh.loop_problem(H / 1e3, B)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LoopWarning)
+        jh.loop_problem(H, B)
+
+
 def test_default_bounds_follow_the_data_and_a_bounds_dict_changes_only_its_names():
     H, B = _clean_loop()
     f = loop_features(H, B / MU0 - H)

@@ -259,6 +259,13 @@ def loop_bounds(Hs, datas, output: str, bounds=None) -> Bounds:
                           "offset of H (a zero error of the field measurement) keeps a "
                           "symmetric model from fitting — subtract it from H.", LoopWarning,
                           stacklevel=3)
+        Mmax = np.max(np.abs(magnetization_of(d, H, output)))
+        chi = Mmax / max(np.max(np.abs(H)), 1e-300)
+        if chi > 2e6 and Mmax <= 1e7:  # (beyond 1e7 A/m the box's error says it)
+            warnings.warn(f"{where}the magnetization reaches {chi:.3g} times the field (the "
+                          "relative permeability at the tips), beyond the most permeable "
+                          "alloys (~1e6): is H in A/m (a column in kA/m without its unit "
+                          "reads 1000× small)?", LoopWarning, stacklevel=3)
     feats = [loop_features(H, magnetization_of(d, H, output))
              for H, d in zip(Hs, datas, strict=True)]
     return merge_bounds(default_loop_bounds(feats), dict(bounds or {}))
