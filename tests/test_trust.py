@@ -88,7 +88,7 @@ def _loop(n=400):
     return H, B
 
 
-def test_a_spike_in_a_loop_is_named_and_an_offset_field_warned_about():
+def test_a_spike_in_a_loop_is_named_and_an_offset_field_or_data_warned_about():
     H, B = _loop()
     spiked = B.copy()
     spiked[123] = 5.0  # 5 T in a 1.5 T loop
@@ -96,6 +96,8 @@ def test_a_spike_in_a_loop_is_named_and_an_offset_field_warned_about():
         jh.loop_problem(H, spiked)
     with pytest.warns(LoopWarning, match="offset by 400 A/m"):
         jh.loop_problem(H + 400.0, B)
+    with pytest.warns(LoopWarning, match="the data look offset by 0.4 T"):
+        jh.loop_problem(H, B + 0.4)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         jh.loop_problem(H, B)

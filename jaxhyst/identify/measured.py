@@ -252,20 +252,9 @@ def loop_bounds(Hs, datas, output: str, bounds=None) -> Bounds:
                     f"spike: {jump:.3g} {unit} off its neighbours, whose steps are "
                     f"~{step:.2g} {unit}; it would set the box (and the fit) — remove or "
                     "repair that sample.")
-        offset = field_offset(H, d)
-        if offset is not None:
-            warnings.warn(f"{where}the field looks offset by {offset:.4g} A/m: the loop's "
-                          "data are symmetric about 0 but its field tips are not; a DC "
-                          "offset of H (a zero error of the field measurement) keeps a "
-                          "symmetric model from fitting — subtract it from H.", LoopWarning,
-                          stacklevel=3)
         Mmax = np.max(np.abs(magnetization_of(d, H, output)))
-        chi = Mmax / max(np.max(np.abs(H)), 1e-300)
-        if chi > 2e6 and Mmax <= 1e7:  # (beyond 1e7 A/m the box's error says it)
-            warnings.warn(f"{where}the magnetization reaches {chi:.3g} times the field (the "
-                          "relative permeability at the tips), beyond the most permeable "
-                          "alloys (~1e6): is H in A/m (a column in kA/m without its unit "
-                          "reads 1000× small)?", LoopWarning, stacklevel=3)
+        if Mmax <= 1e7:  # (beyond, the box's error names the unit or column alone)
+            _warn_about(H, d, Mmax, where, "T" if output == "flux_density" else "A/m")
     feats = [loop_features(H, magnetization_of(d, H, output))
              for H, d in zip(Hs, datas, strict=True)]
     return merge_bounds(default_loop_bounds(feats), dict(bounds or {}))
@@ -273,6 +262,31 @@ def loop_bounds(Hs, datas, output: str, bounds=None) -> Bounds:
 
 class LoopWarning(UserWarning):
     """Something in a measured loop that keeps the model from fitting it (named)."""
+
+
+def _warn_about(H, d, Mmax, where: str, unit: str) -> None:
+    """A `LoopWarning` for each offset (of the field, of the data) and for a
+    permeability no material has (a field read 1000× small) in the loop (H, d)."""
+    offset = field_offset(H, d)
+    if offset is not None:
+        warnings.warn(f"{where}the field looks offset by {offset:.4g} A/m: the loop's "
+                      "data are symmetric about 0 but its field tips are not; a DC "
+                      "offset of H (a zero error of the field measurement) keeps a "
+                      "symmetric model from fitting — subtract it from H.", LoopWarning,
+                      stacklevel=4)
+    offset = data_offset(H, d)
+    if offset is not None:
+        warnings.warn(f"{where}the data look offset by {offset:.4g} {unit}: the loop's "
+                      "field is symmetric about 0 but its data's tips are not; the "
+                      "model, started demagnetized, draws a centred loop — a DC offset "
+                      "(the integration constant of a fluxmeter, say) keeps it from "
+                      "fitting: subtract it.", LoopWarning, stacklevel=4)
+    chi = Mmax / max(np.max(np.abs(H)), 1e-300)
+    if chi > 2e6:
+        warnings.warn(f"{where}the magnetization reaches {chi:.3g} times the field (the "
+                      "relative permeability at the tips), beyond the most permeable "
+                      "alloys (~1e6): is H in A/m (a column in kA/m without its unit "
+                      "reads 1000× small)?", LoopWarning, stacklevel=4)
 
 
 #: A sample this many times the loop's typical step away from its running median, and
@@ -299,6 +313,13 @@ def find_spike(x) -> tuple[int, float, float] | None:
             jump[k] > SPIKE_FRACTION * span and abs(pad[k] - pad[k + 2]) < 0.5 * jump[k]:
         return k, float(jump[k]), step
     return None
+
+
+def data_offset(H, data) -> float | None:
+    """The DC offset of a loop's data, (max + min)/2, where the field is symmetric about
+    0 (|Hmax + Hmin| within 5 % of its range) but the data's tips are not (offset above
+    10 % of their range); else None."""
+    return field_offset(data, H)
 
 
 def field_offset(H, data) -> float | None:
