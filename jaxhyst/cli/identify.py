@@ -335,8 +335,9 @@ def run(args) -> int:
         warn(args, w)
     status = _exit_status(result)
     if status == 0 and held is not None and held["stopped_short"]:
-        warn(args, "a fit of the leave-one-out stopped short: "
-             + "; ".join(held["stopped_short"]) + " (its held-out error is not final)")
+        warn(args, "a fit of the leave-one-out stopped short: " + "; ".join(held[
+            "stopped_short"]) + " (its held-out error is not final; --max-steps N allows "
+             f"a fit more steps than {args.max_steps or 200})")
         return 3
     return status
 
@@ -366,8 +367,7 @@ def _portable_path(path: str, out: str | None) -> str:
 
 
 def _identify_figure(args, problem, result, has_t: bool) -> list[str]:
-    """Draw the fit into ``args.png`` (and a hybrid's history beside it); the files
-    written."""
+    """Draw the fit into ``args.png`` (and a hybrid's history beside it): files written."""
     import numpy as np
 
     import jaxhyst as jh
