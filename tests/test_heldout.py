@@ -523,8 +523,9 @@ def test_a_law_that_gives_no_material_at_a_held_out_loop_is_a_row_not_an_error(t
 
 def test_an_own_fit_cut_at_its_step_limit_is_continued_once(monkeypatch):
     """An own fit that stopped at its step limit is the denominator of its loop's ratio:
-    cut short, it flatters the form. It is fitted once more from where it stopped (the
-    same batch) and the better kept; a converged one is left alone."""
+    cut short, it flatters the form (a fold so cut: its held-out error is not final). It
+    is fitted once more from where it stopped (the same batch) and the better kept; a
+    converged one is left alone."""
     from types import SimpleNamespace
 
     from jaxhyst.cli import fitting, heldout
@@ -538,11 +539,11 @@ def test_an_own_fit_cut_at_its_step_limit_is_continued_once(monkeypatch):
     monkeypatch.setattr(fitting, "refit_from", refit)
     cut = SimpleNamespace(result="max_steps_reached", cost=2.0, params={"k": np.array([3.0])})
     fit = (cut, "problem", {"variant": "play"})
-    again = heldout._continued(SimpleNamespace(), fit, "lm", 0)
+    again = heldout._continued(SimpleNamespace(), fit, "lm", "loop 0 alone")
     assert again[0].result == "successful" and again[1:] == fit[1:]
     assert calls == [({"k": 3.0}, "lm")]  # (from where it stopped, by the same method)
     done = (SimpleNamespace(result="successful", cost=2.0, params={}), "p", {"variant": "x"})
-    assert heldout._continued(SimpleNamespace(), done, "lm", 0) is done and len(calls) == 1
+    assert heldout._continued(SimpleNamespace(), done, "lm", "x") is done and len(calls) == 1
     worse = SimpleNamespace(result="max_steps_reached", cost=0.5, params={"k": 3.0})
     assert heldout._continued(SimpleNamespace(), (worse, "p", {"variant": "x"}), "lm",
-                              0)[0] is worse  # (the better of the two)
+                              "x")[0] is worse  # (the better of the two)

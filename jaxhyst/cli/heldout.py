@@ -137,10 +137,11 @@ def _again(args, fit, params, method, source: str, rms: float, index):
     return (again, problem, spec) if again.rms_error < result.rms_error else fit
 
 
-def _continued(args, fit, method, index):
-    """``fit`` = (result, problem, spec) of one loop alone; where it stopped at its step
-    limit, fitted once more from where it stopped (the same batch: nothing compiles) and
-    the better kept — an own fit cut short flatters every ratio to it."""
+def _continued(args, fit, method, what: str):
+    """``fit`` = (result, problem, spec) of one loop alone or a fold without a law (``what``
+    it is, for the note); where it stopped at its step limit, fitted once more from where
+    it stopped (the same batch: nothing compiles) and the better kept — an own fit cut
+    short flatters every ratio to it, a fold's held-out error is not final."""
     import jax
     import numpy as np
 
@@ -149,8 +150,8 @@ def _continued(args, fit, method, index):
     result, problem, spec = fit
     if result.result != "max_steps_reached":
         return fit
-    note("leave-one-out", f"{spec['variant']}: loop {index} alone stopped at its step "
-         "limit: once more from there")
+    note("leave-one-out", f"{spec['variant']}: {what} stopped at its step limit: once more "
+         "from there")
     params = jax.tree.map(lambda x: x[0] if np.ndim(x) else x, result.params)
     again = refit_from(args, problem, params, method, quiet=True)
     return (again, problem, spec) if again.cost <= result.cost else fit
@@ -253,7 +254,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                       "vary": None, "per_loop": []}
             note("leave-one-out", f"{form}: loop {lp.index} alone …")
             own.append(_continued(args, _fit(args, single, given, [lp], method), method,
-                                  lp.index))
+                                  f"loop {lp.index} alone"))
             seen.append({len(own) - 1})
         # (each loop's fit from its own data alone: what a fold starts from, and the
         # baseline predicts by, where a re-fit from a neighbour's fit saw the held-out
@@ -279,6 +280,9 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                      if not isinstance(fits[j].params, dict)] if shared else []
             note("leave-one-out", f"{form}: fitting without loop {held.index} …")
             result, problem, fitted = _fit(args, spec_f, given, rest, method, seeds)
+            if shared:  # (a law's coefficients are not refitted so)
+                result, problem, fitted = _continued(args, (result, problem, fitted), method,
+                                                     f"the fold without loop {held.index}")
             if result.result == "interrupted":
                 partial = True
                 break
