@@ -138,8 +138,8 @@ def _again(args, fit, params, method, source: str, rms: float, index):
 
 
 def _continued(args, fit, method, what: str):
-    """``fit`` = (result, problem, spec) of one loop alone or a fold without a law (``what``
-    it is, for the note); where it stopped at its step limit, fitted once more from where
+    """``fit`` = (result, problem, spec) of one loop alone or a fold (``what`` it is, for
+    the note); where it stopped at its step limit, fitted once more from where
     it stopped (the same batch: nothing compiles) and the better kept — an own fit cut
     short flatters every ratio to it, a fold's held-out error is not final."""
     import jax
@@ -280,9 +280,8 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                      if not isinstance(fits[j].params, dict)] if shared else []
             note("leave-one-out", f"{form}: fitting without loop {held.index} …")
             result, problem, fitted = _fit(args, spec_f, given, rest, method, seeds)
-            if shared:  # (a law's coefficients are not refitted so)
-                result, problem, fitted = _continued(args, (result, problem, fitted), method,
-                                                     f"the fold without loop {held.index}")
+            result, problem, fitted = _continued(args, (result, problem, fitted), method,
+                                                 f"the fold without loop {held.index}")
             if result.result == "interrupted":
                 partial = True
                 break
