@@ -141,11 +141,16 @@ def bounds_arg(spec: str | None):
                                     extra=(*LOSS_PARAMETER_NAMES, *FORM_PARAMETER_NAMES))
 
 
-def per_loop_arg(text) -> list:
-    """--per-loop ``'a,k,c'`` → ``["a", "k", "c"]`` (the names --fix takes)."""
+def _parameter_names() -> tuple:
+    """The names --fix and --per-loop take: the ten, the loss coefficients, the forms'."""
     from jaxhyst.params import NAMES
 
-    names = (*NAMES, *LOSS_PARAMETER_NAMES, *FORM_PARAMETER_NAMES)
+    return (*NAMES, *LOSS_PARAMETER_NAMES, *FORM_PARAMETER_NAMES)
+
+
+def per_loop_arg(text) -> list:
+    """--per-loop ``'a,k,c'`` → ``["a", "k", "c"]`` (the names --fix takes)."""
+    names = _parameter_names()
     out = [n.strip() for n in (text or "").split(",") if n.strip()]
     unknown = [n for n in out if n not in names]
     if unknown:
@@ -158,7 +163,7 @@ def fixed_arg(items, params) -> dict:
     """--fix: ``{name: value}`` (the ten, the loss coefficients, a form's spread)."""
     from jaxhyst.params import NAMES
 
-    names = (*NAMES, *LOSS_PARAMETER_NAMES, *FORM_PARAMETER_NAMES)
+    names = _parameter_names()
     out = {}
     for item in items or []:
         for part in item.split(","):

@@ -235,6 +235,7 @@ def loop_bounds(Hs, datas, output: str, bounds=None) -> Bounds:
                         f"{type(bounds).__name__}.")
     if not isinstance(Hs, (list, tuple)):
         Hs, datas = [Hs], [datas]
+    feats = []
     for i, (H, d) in enumerate(zip(Hs, datas, strict=True)):
         where = f"loop {i}: " if len(Hs) > 1 else ""
         for what, a in (("H", H), ("data", d)):
@@ -252,11 +253,11 @@ def loop_bounds(Hs, datas, output: str, bounds=None) -> Bounds:
                     f"spike: {jump:.3g} {unit} off its neighbours, whose steps are "
                     f"~{step:.2g} {unit}; it would set the box (and the fit) — remove or "
                     "repair that sample.")
-        Mmax = np.max(np.abs(magnetization_of(d, H, output)))
+        M = magnetization_of(d, H, output)
+        Mmax = np.max(np.abs(M))
         if Mmax <= 1e7:  # (beyond, the box's error names the unit or column alone)
             _warn_about(H, d, Mmax, where, "T" if output == "flux_density" else "A/m")
-    feats = [loop_features(H, magnetization_of(d, H, output))
-             for H, d in zip(Hs, datas, strict=True)]
+        feats.append(loop_features(H, M))
     return merge_bounds(default_loop_bounds(feats), dict(bounds or {}))
 
 

@@ -214,8 +214,9 @@ def _static_substeps(substeps) -> int:
     return int(substeps)
 
 
-def _check_inputs(params, actuator, drive, variant, substeps, losses=None) -> None:
-    """The public entry points' validation: types, substeps, physical parameter values."""
+def _check_inputs(params, actuator, drive, variant, substeps, losses=None) -> int:
+    """The public entry points' validation: types, substeps, physical parameter values;
+    the substeps as a Python int (a NumPy integer is one too)."""
     if not isinstance(params, Parameters):
         raise TypeError(f"params must be jaxhyst.Parameters; got {type(params).__name__}.")
     if not isinstance(actuator, Actuator):
@@ -228,13 +229,14 @@ def _check_inputs(params, actuator, drive, variant, substeps, losses=None) -> No
         raise TypeError(f"variant must be a model form (a Jiles–Atherton variant such as "
                         f"EnergyBasedJA(), or a form of pinning cells such as PlayJA()); got "
                         f"{variant!r}.")
-    checked_substeps(substeps)
+    n = checked_substeps(substeps)
     if losses is not None and not isinstance(losses, Losses):
         raise TypeError(f"losses must be jaxhyst.Losses(eddy, excess, lag, relax) or None; got "
                         f"{losses!r}.")
     if losses is not None:
         require_times(drive)
     check_parameters(params)
+    return n
 
 
 def _check_single(params, drive) -> None:
@@ -290,8 +292,7 @@ def simulate(
     over parameter sets use ``jax.vmap(simulate_unchecked, in_axes=(0, None, None))``
     or `jaxhyst.simulate_batch`.
     """
-    _check_inputs(params, actuator, drive, variant, substeps, losses)
-    substeps = checked_substeps(substeps)  # (a NumPy integer too: a Python int from here)
+    substeps = _check_inputs(params, actuator, drive, variant, substeps, losses)
     _check_single(params, drive)
     if not is_concrete((params, actuator, drive, variant, losses)):  # (traced: no check)
         return _simulate_jit(params, actuator, drive, variant, substeps, losses)
