@@ -25,8 +25,9 @@ import threading
 
 #: Threads (ident → events) whose background work waits for their next large lowering.
 _WAITING: dict[int, set] = {}
-#: A lowering that takes this long (s) is a large program's: its compile follows.
-LARGE_LOWERING = 0.1
+#: A lowering that takes this long (s) is a large program's: its compile follows (a
+#: simulation of a reference's length lowers in 0.05–0.1 s).
+LARGE_LOWERING = 0.05
 _listening = False
 THREAD_NAME = "jaxhyst-compile-meanwhile"
 

@@ -14,19 +14,27 @@ extra piece boundary, so the interval is integrated in S + 1 RK4 pieces with the
 a boundary (in S pieces otherwise). The uniform substep points stay piece boundaries: the
 structural dynamics are driven from them.
 
+**Code size.** The pieces of an interval are one loop of S + 1 iterations (the last
+computed only where the switch falls inside the interval), and the RK4 stages a loop
+within it, so the slope is traced and compiled once for all pieces, however many
+``substeps``: every program that contains the time loop (and its derivatives, which
+contain it several times over) compiles faster, for a few per cent more run time than
+straight-line code (benchmarks/RESULTS.md).
+
 `interval_map` is one interval for one trajectory, `interval_map_batched` the same map
 for a batch, with the rare branches computed only when some member needs them.
 
 **On an accelerator** (`on_accelerator`: JAX's default backend is a GPU or TPU) every
 ``lax.cond`` and small loop inside the time loop costs a round trip to the host per
 interval, which dominates there: the branches are then computed always and selected, and
-the RK4 stages unrolled — the same values, more arithmetic, fewer launches.
+the pieces and RK4 stages unrolled — the same values, more arithmetic, fewer launches.
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..params import Parameters
 from .jiles_atherton import AbstractJAVariant
@@ -47,27 +55,43 @@ def on_accelerator() -> bool:
 def branch(pred, true_fn, false_fn, *operands):
     """``lax.cond(pred, true_fn, false_fn, *operands)`` on the CPU; on an accelerator both
     branches, selected by ``pred`` (a scalar)."""
+    if isinstance(pred, (bool, np.bool_)):  # (known while tracing)
+        return true_fn(*operands) if pred else false_fn(*operands)
     if not on_accelerator():
         return jax.lax.cond(pred, true_fn, false_fn, *operands)
     return jax.tree.map(lambda a, b: jnp.where(pred, a, b), true_fn(*operands),
                         false_fn(*operands))
 
 
-def _rk4(f, H, M, dH, k1):
-    """One classic RK4 step of dM/dH = f(H, M) from (H, M) over dH, given k1 = f(H, M).
+def _rk4(f, H, M, dH, k1, end: bool = False):
+    """One classic RK4 step of dM/dH = k from (H, M) over dH, given k1 = k at (H, M),
+    where ``f(H, M)`` returns a tuple whose first entry is k. ``end``: also evaluate
+    ``f`` at the end of the step (H + dH, M at H + dH).
 
-    Stages 2–4 are a three-iteration loop around one evaluation of f rather than three
-    copies of it: the same arithmetic, a third of the code to trace and compile."""
+    **Returns:** (M at H + dH, ``f`` at the end of the step or None).
+
+    Stages 2–4 (and the end) are a loop around one evaluation of ``f`` rather than copies
+    of it: the same arithmetic, a fraction of the code to trace and compile."""
+    out = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(f, H, M))
 
     def stage(i, state):
-        k, total = state
-        last = i == 2  # stages 2 and 3 at the midpoint, weight 2; stage 4 at the end
-        h = jnp.where(last, dH, 0.5 * dH)
-        k = f(H + h, M + h * k)
-        return k, total + jnp.where(last, k, 2.0 * k)
+        # i = 1, 2: the midpoint (weight 2); 3: the step's end (weight 1); 4 (``end``
+        # only): f at the step's result, which adds nothing to it
+        k, total, _ = state
+        h = jnp.where(i == 3, dH, 0.5 * dH)
+        if end:
+            result = i == 4
+            out = f(H + jnp.where(result, dH, h),
+                    jnp.where(result, M + (dH / 6.0) * total, M + h * k))
+        else:
+            out = f(H + h, M + h * k)
+        k = out[0]
+        added = total + jnp.where(i == 3, k, 2.0 * k)
+        return k, (jnp.where(result, total, added) if end else added), out
 
-    _, total = jax.lax.fori_loop(0, 3, stage, (k1, k1), unroll=on_accelerator())
-    return M + (dH / 6.0) * total
+    _, total, out = jax.lax.fori_loop(1, 5 if end else 4, stage, (k1, k1, out),
+                                      unroll=on_accelerator())
+    return M + (dH / 6.0) * total, out if end else None
 
 
 def _hermite_root(d0, d1, s0, s1, iterations: int = 2):
@@ -92,55 +116,53 @@ def _switch_fraction(variant, p, delta, H0, H1, M0, start):
     at (H0, M0): called where d ≤ 0 there, so the irreversible term is off and that slope
     is the reversible one."""
     dH = H1 - H0
-
-    def reversible(H, M):
-        return variant.slope(H, M, delta, p, pinning=False)
-
     k0, d0, s0 = start
-    M1 = _rk4(reversible, H0, M0, dH, k0)
-    _, d1, s1 = variant.evaluate(H1, M1, delta, p, pinning=False)
+    _, (_, d1, s1) = _rk4(
+        lambda H, M: variant.evaluate(H, M, delta, p, pinning=False), H0, M0, dH, k0,
+        end=True)
     switches = d1 > 0
     theta = _hermite_root(d0, jnp.where(switches, d1, 1.0), s0 * dH, s1 * dH)
     return jnp.where(switches, theta, 1.0)
 
 
-def _pieces(variant, p, H0, H1, M0, k0, theta, substeps):
-    """The S pieces up to b_S (uniform substep points, with θ inserted after the last
-    one below it). Returns (ends, starts, b_S): M after and the slope at the start of
-    each piece, and where the S-th piece ended (the extra piece covers [b_S, 1])."""
+def _boundary(i, m, theta, S):
+    """b_i, the start of piece i (0 … S + 1): the uniform substep points with θ inserted
+    after the last one below it (b_{S+1} = 1)."""
+    i = jnp.asarray(i, dtype=theta.dtype)
+    return jnp.where(i <= m, i / S, jnp.where(i == m + 1, theta, (i - 1) / S))
+
+
+def _repeat(n: int, body, carry):
+    """``body(i, carry)`` for i = 0 … n − 1: a loop (one copy of the body to compile) on
+    the CPU, unrolled with static i on an accelerator."""
+    if on_accelerator():
+        for i in range(n):
+            carry = body(i, carry)
+        return carry
+    return jax.lax.fori_loop(0, n, body, carry)
+
+
+def _piece(variant, p, H0, H1, M0, k0, theta, substeps, i, M):
+    """Piece i from b_i to b_{i+1} from M at b_i: (M at b_{i+1}, the slope at b_i)."""
     S = substeps
     dH = H1 - H0
     delta = jnp.where(dH >= 0, 1.0, -1.0)
-    m = jnp.floor(theta * S)  # substep points below the switch: u_0 … u_m
-    b = [jnp.where(i <= m, i / S, jnp.where(i == m + 1, theta, (i - 1) / S))
-         for i in range(S + 1)]
-    ends, starts = [], []
-    M, k = M0, k0
-    for i in range(S):
-        if i > 0:
-            k = variant.slope(H0 + b[i] * dH, M, delta, p)
-        starts.append(k)
-        M = _rk4(lambda H, M: variant.slope(H, M, delta, p), H0 + b[i] * dH, M,
-                 (b[i + 1] - b[i]) * dH, k)
-        ends.append(M)
-    return ends, starts, b[S]
-
-
-def _last_piece(variant, p, H0, H1, M, b_S):
-    """The extra piece from b_S to the end of the interval: (M at H1, slope at b_S)."""
-    dH = H1 - H0
-    delta = jnp.where(dH >= 0, 1.0, -1.0)
-    Ha = H0 + b_S * dH
-    k = variant.slope(Ha, M, delta, p)
-    return _rk4(lambda H, M: variant.slope(H, M, delta, p), Ha, M, (1.0 - b_S) * dH, k), k
+    m = jnp.floor(theta * S)
+    b0, b1 = _boundary(i, m, theta, S), _boundary(i + 1, m, theta, S)
+    Ha = H0 + b0 * dH
+    k = branch(i == 0, lambda: k0, lambda: variant.slope(Ha, M, delta, p))
+    M1, _ = _rk4(lambda H, M: (variant.slope(H, M, delta, p),), Ha, M, (b1 - b0) * dH, k)
+    return M1, k
 
 
 def _assemble(ends, starts, theta, substeps):
-    """M at u_1 … u_S and the slope at u_0 … u_{S−1} from the S + 1 pieces."""
+    """M at u_1 … u_S and the slope at u_0 … u_{S−1} from the S + 1 pieces (``ends``,
+    ``starts``: shape (S + 1,) each, M after and the slope at the start of each)."""
     S = substeps
     m = jnp.floor(theta * S)
-    M_points = jnp.stack([jnp.where(j <= m, ends[j - 1], ends[j]) for j in range(1, S + 1)])
-    k_points = jnp.stack([jnp.where(j <= m, starts[j], starts[j + 1]) for j in range(S)])
+    j = jnp.arange(S)
+    M_points = jnp.where(j + 1 <= m, ends[:S], ends[1:])
+    k_points = jnp.where(j <= m, starts[:S], starts[1:])
     return M_points, k_points
 
 
@@ -154,18 +176,27 @@ def interval_map(variant: AbstractJAVariant, p: Parameters, H0, H1, M0, substeps
     **Returns:** ``(M_points, k_points)``: M (A/m) at the substep points u_1 … u_S and the
     slope dM/dH (with this interval's direction) at u_0 … u_{S−1}, each shape (S,).
     The located switch and the extra piece are ``lax.cond`` branches, taken only after
-    field reversals (`interval_map_batched` is the same map for a batch).
+    field reversals; the pieces are one loop (`interval_map_batched` is the same map for a batch).
     """
     delta = direction_of(H0, H1)
     start = variant.evaluate(H0, M0, delta, p)
     k0, d0, _ = start
     theta = branch(d0 <= 0, lambda: _switch_fraction(variant, p, delta, H0, H1, M0, start),
                    lambda: jnp.ones_like(H0))
-    ends, starts, b_S = _pieces(variant, p, H0, H1, M0, k0, theta, substeps)
-    # the extra piece has zero length unless the switch falls inside this interval
-    M_last, k_last = branch(b_S < 1.0, lambda M: _last_piece(variant, p, H0, H1, M, b_S),
-                            lambda M: (M, k0), ends[-1])
-    return _assemble([*ends, M_last], [*starts, k_last], theta, substeps)
+    S = substeps
+    b_S = _boundary(S, jnp.floor(theta * S), theta, S)
+
+    def body(i, carry):
+        M, ends, starts = carry
+        # the extra piece (i = S) has zero length unless the switch falls inside
+        M, k = branch((i < S) | (b_S < 1.0),
+                      lambda: _piece(variant, p, H0, H1, M0, k0, theta, S, i, M),
+                      lambda: (M, k0))
+        return M, ends.at[i].set(M), starts.at[i].set(k)
+
+    empty = jnp.zeros((S + 1,), dtype=jnp.result_type(M0))
+    _, ends, starts = _repeat(S + 1, body, (M0, empty, empty))
+    return _assemble(ends, starts, theta, S)
 
 
 def interval_map_batched(variant, p, H0, H1, M0, substeps: int):
@@ -184,12 +215,23 @@ def interval_map_batched(variant, p, H0, H1, M0, substeps: int):
         return jnp.where(off, theta, 1.0)
 
     theta = branch(jnp.any(off), located, lambda: jnp.ones_like(H0))
-    ends, starts, b_S = vm(lambda *a: _pieces(variant, *a, substeps))(p, H0, H1, M0, k0,
-                                                                       theta)
-    M_last, k_last = branch(
-        jnp.any(b_S < 1.0),
-        lambda: vm(lambda *a: _last_piece(variant, *a))(p, H0, H1, ends[-1], b_S),
-        lambda: (ends[-1], k0))
-    M_points, k_points = vm(lambda e, s, t: _assemble(e, s, t, substeps))(
-        [*ends, M_last], [*starts, k_last], theta)
+    S = substeps
+    b_S = _boundary(S, jnp.floor(theta * S), theta, S)
+
+    def body(i, carry):
+        M, ends, starts = carry
+
+        def piece():
+            M1, k = vm(lambda p, H0, H1, M0, k0, theta, M: _piece(
+                variant, p, H0, H1, M0, k0, theta, S, i, M))(p, H0, H1, M0, k0, theta, M)
+            needed = (i < S) | (b_S < 1.0)
+            return jnp.where(needed, M1, M), jnp.where(needed, k, k0)
+
+        # the extra piece (i = S) only where some member's switch falls inside
+        M, k = branch((i < S) | jnp.any(b_S < 1.0), piece, lambda: (M, k0))
+        return M, ends.at[:, i].set(M), starts.at[:, i].set(k)
+
+    empty = jnp.zeros((*jnp.shape(M0), S + 1), dtype=jnp.result_type(M0))
+    _, ends, starts = _repeat(S + 1, body, (M0, empty, empty))
+    M_points, k_points = vm(lambda e, s, t: _assemble(e, s, t, S))(ends, starts, theta)
     return M_points, k_points
