@@ -128,7 +128,7 @@ def derivative_table(spp, repeats):
 
     s = setup(spp)
     mag, jh = s["mag"], s["jh"]
-    from jaxhyst.model import timeloop
+    from jaxhyst.model import paths, timeloop
 
     f = jax.jit(s["loss"])
     g = jax.jit(jax.grad(s["loss"]))
@@ -146,7 +146,8 @@ def derivative_table(spp, repeats):
     for fn in ours.values():  # compile with the derivative rule in place
         fn()
     # plain JAX AD of the same time loop, without the custom rule
-    mag.run_path = timeloop.run_path_plain  # (the JA path's loop without its rule)
+    # (the time loop without its rule, where simulate and magnetization_path call it)
+    mag.run_path = paths.run_path = timeloop.run_path_plain
     try:
         s2 = setup(spp)
         f2 = jax.jit(s2["loss"])
@@ -163,7 +164,7 @@ def derivative_table(spp, repeats):
             fn()
         agree = float(jnp.max(jnp.abs(g(z0) - g2(z0))) / jnp.max(jnp.abs(g2(z0))))
     finally:
-        mag.run_path = timeloop.run_path
+        mag.run_path = paths.run_path = timeloop.run_path
     timed = interleaved_ms({**{("ours", k): v for k, v in ours.items()},
                             **{("plain", k): v for k, v in plain.items()}}, repeats)
     rows = {k: timed["ours", k] for k in ours}

@@ -338,3 +338,39 @@ def test_the_branch_free_path_of_an_accelerator_gives_the_same_values():
     assert conds > 0 and conds_free == 0
     assert np.max(np.abs(y_free - y)) <= 1e-12 * np.max(np.abs(y))
     assert np.max(np.abs(J_free - J)) <= 1e-9 * np.max(np.abs(J))
+
+
+def test_an_intervals_pieces_as_one_loop_give_the_straight_line_values():
+    """The partials pass traces an interval's pieces as one loop (interval.compact), the
+    values pass as straight-line code: the same M and slopes, for every substeps count
+    and with the switch inside the interval (the extra piece), one trajectory and a
+    batch; and the loop is in the compact trace only."""
+    from jaxhyst.model import interval
+
+    variant, p = jh.EnergyBasedJA(), jh.TABLE1_TRUE
+    # moving up from below the anhysteretic after a reversal: δM switches on inside
+    H0, H1 = jnp.array([2.0e4, 2.0e4, 3.0e4]), jnp.array([2.6e4, 3.4e4, 3.3e4])
+    M0 = jnp.array([1.0e5, 2.5e5, 4.0e5])
+    P = jax.tree.map(lambda x: jnp.full(3, x), p)
+
+    def both(S):  # (a new function each time: traced under the caller's setting)
+        one = jax.vmap(lambda a, b, m: interval.interval_map(variant, p, a, b, m, S))
+        return jax.jit(lambda: (one(H0, H1, M0), interval.interval_map_batched(
+            variant, P, H0, H1, M0, S)))()
+
+    def loops(S):
+        return str(jax.make_jaxpr(lambda m: interval.interval_map(
+            variant, p, H0[0], H1[0], m, S))(M0[0])).count("scan[")
+
+    switched = jax.vmap(lambda a, b, m: interval._switch_fraction(
+        variant, p, 1.0, a, b, m, variant.evaluate(a, m, 1.0, p)))(H0, H1, M0)
+    assert np.all(np.asarray(switched) < 1.0), switched  # (the extra piece is computed)
+    for S in (1, 2, 4):
+        straight, straight_loops = both(S), loops(S)
+        with interval.compact():
+            looped, looped_loops = both(S), loops(S)
+        # loops: the switch's RK4 stages, then one per piece (S + 1) or one loop of
+        # pieces around one of stages
+        assert (straight_loops, looped_loops) == (S + 2, 3)
+        for a, b in zip(jax.tree.leaves(straight), jax.tree.leaves(looped), strict=True):
+            np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-14, atol=0)

@@ -14,12 +14,13 @@ extra piece boundary, so the interval is integrated in S + 1 RK4 pieces with the
 a boundary (in S pieces otherwise). The uniform substep points stay piece boundaries: the
 structural dynamics are driven from them.
 
-**Code size.** The pieces of an interval are one loop of S + 1 iterations (the last
-computed only where the switch falls inside the interval), and the RK4 stages a loop
-within it, so the slope is traced and compiled once for all pieces, however many
-``substeps``: every program that contains the time loop (and its derivatives, which
-contain it several times over) compiles faster, for a few per cent more run time than
-straight-line code (benchmarks/RESULTS.md).
+**Code size.** In the time loop's partials pass (`compact`: its code is multiplied by
+the tangents, and again by a second derivative) the pieces of an interval are one loop
+of S + 1 iterations, the last computed only where the switch falls inside the interval,
+so the slope is traced and compiled once for all pieces, however many ``substeps``: the
+programs that differentiate the time loop compile faster, for a few per cent more run
+time than straight-line code (benchmarks/RESULTS.md). The values pass, where run time
+counts (a population), keeps the pieces straight-line. The RK4 stages are a loop in both.
 
 `interval_map` is one interval for one trajectory, `interval_map_batched` the same map
 for a batch, with the rare branches computed only when some member needs them.
@@ -31,6 +32,8 @@ the pieces and RK4 stages unrolled — the same values, more arithmetic, fewer l
 """
 
 from __future__ import annotations
+
+import contextlib
 
 import jax
 import jax.numpy as jnp
@@ -132,14 +135,40 @@ def _boundary(i, m, theta, S):
     return jnp.where(i <= m, i / S, jnp.where(i == m + 1, theta, (i - 1) / S))
 
 
+#: Set while the partials pass of the time loop traces its intervals (`compact`).
+_COMPACT: list = []
+
+
+@contextlib.contextmanager
+def compact():
+    """Trace intervals with their pieces as one loop (a single copy of the slope to
+    compile) for the duration, on the CPU. The time loop's partials pass traces under it:
+    there the code is multiplied by the tangents and their derivatives, and compile time
+    counts for more than the few per cent of run time a loop costs. Elsewhere the pieces
+    are straight-line code. Values are the same either way."""
+    _COMPACT.append(True)
+    try:
+        yield
+    finally:
+        _COMPACT.pop()
+
+
 def _repeat(n: int, body, carry):
-    """``body(i, carry)`` for i = 0 … n − 1: a loop (one copy of the body to compile) on
-    the CPU, unrolled with static i on an accelerator."""
-    if on_accelerator():
-        for i in range(n):
-            carry = body(i, carry)
-        return carry
-    return jax.lax.fori_loop(0, n, body, carry)
+    """``body(i, carry)`` for i = 0 … n − 1: a loop (one copy of the body to compile)
+    where `compact` and on the CPU, else unrolled with static i."""
+    if _COMPACT and not on_accelerator():
+        return jax.lax.fori_loop(0, n, body, carry)
+    for i in range(n):
+        carry = body(i, carry)
+    return carry
+
+
+def _needed(i, S: int, extra):
+    """Whether piece i is computed: the S uniform pieces always, the extra one (i = S)
+    where ``extra``; known while tracing where i is."""
+    if isinstance(i, int):
+        return True if i < S else extra
+    return (i < S) | extra
 
 
 def _piece(variant, p, H0, H1, M0, k0, theta, substeps, i, M):
@@ -189,7 +218,7 @@ def interval_map(variant: AbstractJAVariant, p: Parameters, H0, H1, M0, substeps
     def body(i, carry):
         M, ends, starts = carry
         # the extra piece (i = S) has zero length unless the switch falls inside
-        M, k = branch((i < S) | (b_S < 1.0),
+        M, k = branch(_needed(i, S, b_S < 1.0),
                       lambda: _piece(variant, p, H0, H1, M0, k0, theta, S, i, M),
                       lambda: (M, k0))
         return M, ends.at[i].set(M), starts.at[i].set(k)
@@ -228,7 +257,7 @@ def interval_map_batched(variant, p, H0, H1, M0, substeps: int):
             return jnp.where(needed, M1, M), jnp.where(needed, k, k0)
 
         # the extra piece (i = S) only where some member's switch falls inside
-        M, k = branch((i < S) | jnp.any(b_S < 1.0), piece, lambda: (M, k0))
+        M, k = branch(_needed(i, S, jnp.any(b_S < 1.0)), piece, lambda: (M, k0))
         return M, ends.at[:, i].set(M), starts.at[:, i].set(k)
 
     empty = jnp.zeros((*jnp.shape(M0), S + 1), dtype=jnp.result_type(M0))

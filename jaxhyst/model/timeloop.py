@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 
 from ._batching import batch_native
-from .interval import on_accelerator
+from .interval import compact, on_accelerator
 
 
 class Interval(NamedTuple):
@@ -188,7 +188,8 @@ def _sensitivity_loop(form, theta, t, H, substeps, names, with_H, batched):
                                  out_axes=(None, -1))(basis)
         return out[..., rows], (out, partials[..., :K])
 
-    _, (out, partials) = jax.lax.scan(step, form.initial_state(theta, xs.H0[0]), xs)
+    with compact():  # (the interval's code, times K tangents: compact code compiles faster)
+        _, (out, partials) = jax.lax.scan(step, form.initial_state(theta, xs.H0[0]), xs)
     return jnp.moveaxis(out, 0, -2), jnp.moveaxis(partials, 0, -3)
 
 
