@@ -3,6 +3,8 @@ gradients against finite differences, batching, physics and input validation."""
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -341,10 +343,11 @@ def test_the_branch_free_path_of_an_accelerator_gives_the_same_values():
 
 
 def test_an_intervals_pieces_as_one_loop_give_the_straight_line_values():
-    """The partials pass traces an interval's pieces as one loop (interval.compact), the
-    values pass as straight-line code: the same M and slopes, for every substeps count
-    and with the switch inside the interval (the extra piece), one trajectory and a
-    batch; and the loop is in the compact trace only."""
+    """A single trajectory's interval, and a batch's in the partials pass
+    (interval.compact), trace their pieces as one loop; a batch's values pass as
+    straight-line code: the same M and slopes for every substeps count, with the switch
+    inside the interval (the extra piece); and the looped trace does not grow with the
+    substeps."""
     from jaxhyst.model import interval
 
     variant, p = jh.EnergyBasedJA(), jh.TABLE1_TRUE
@@ -353,24 +356,25 @@ def test_an_intervals_pieces_as_one_loop_give_the_straight_line_values():
     M0 = jnp.array([1.0e5, 2.5e5, 4.0e5])
     P = jax.tree.map(lambda x: jnp.full(3, x), p)
 
-    def both(S):  # (a new function each time: traced under the caller's setting)
-        one = jax.vmap(lambda a, b, m: interval.interval_map(variant, p, a, b, m, S))
-        return jax.jit(lambda: (one(H0, H1, M0), interval.interval_map_batched(
-            variant, P, H0, H1, M0, S)))()
+    def batch(S):  # (a new function each time: traced under the caller's setting)
+        return jax.jit(lambda: interval.interval_map_batched(variant, P, H0, H1, M0, S))()
 
     def loops(S):
-        return str(jax.make_jaxpr(lambda m: interval.interval_map(
-            variant, p, H0[0], H1[0], m, S))(M0[0])).count("scan[")
+        return str(jax.make_jaxpr(lambda m: interval.interval_map_batched(
+            variant, P, H0, H1, m, S))(M0)).count("scan[")
 
     switched = jax.vmap(lambda a, b, m: interval._switch_fraction(
         variant, p, 1.0, a, b, m, variant.evaluate(a, m, 1.0, p)))(H0, H1, M0)
     assert np.all(np.asarray(switched) < 1.0), switched  # (the extra piece is computed)
     for S in (1, 2, 4):
-        straight, straight_loops = both(S), loops(S)
+        one = jax.jit(jax.vmap(functools.partial(interval.interval_map, variant, p),
+                               in_axes=(0, 0, 0, None)), static_argnums=3)(H0, H1, M0, S)
+        straight, straight_loops = batch(S), loops(S)
         with interval.compact():
-            looped, looped_loops = both(S), loops(S)
+            looped, looped_loops = batch(S), loops(S)
         # loops: the switch's RK4 stages, then one per piece (S + 1) or one loop of
         # pieces around one of stages
         assert (straight_loops, looped_loops) == (S + 2, 3)
-        for a, b in zip(jax.tree.leaves(straight), jax.tree.leaves(looped), strict=True):
-            np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-14, atol=0)
+        for case in (one, looped):
+            for a, b in zip(jax.tree.leaves(straight), jax.tree.leaves(case), strict=True):
+                np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-14, atol=0)

@@ -14,13 +14,14 @@ extra piece boundary, so the interval is integrated in S + 1 RK4 pieces with the
 a boundary (in S pieces otherwise). The uniform substep points stay piece boundaries: the
 structural dynamics are driven from them.
 
-**Code size.** In the time loop's partials pass (`compact`: its code is multiplied by
-the tangents, and again by a second derivative) the pieces of an interval are one loop
-of S + 1 iterations, the last computed only where the switch falls inside the interval,
-so the slope is traced and compiled once for all pieces, however many ``substeps``: the
-programs that differentiate the time loop compile faster, for a few per cent more run
-time than straight-line code (benchmarks/RESULTS.md). The values pass, where run time
-counts (a population), keeps the pieces straight-line. The RK4 stages are a loop in both.
+**Code size.** On the CPU the pieces of a single trajectory's interval are one loop of
+S + 1 iterations, the last computed only where the switch falls inside the interval, so
+the slope is traced and compiled once for all pieces, however many ``substeps``; a
+batch's are too in the time loop's partials pass (`compact`: its code is multiplied by
+the tangents, and again by a second derivative). Programs compile faster, for a few per
+cent more run time than straight-line code (benchmarks/RESULTS.md); a batch's values
+pass (a population, where run time counts) keeps its pieces straight-line. The RK4
+stages are a loop throughout.
 
 `interval_map` is one interval for one trajectory, `interval_map_batched` the same map
 for a batch, with the rare branches computed only when some member needs them.
@@ -141,11 +142,13 @@ _COMPACT: list = []
 
 @contextlib.contextmanager
 def compact():
-    """Trace intervals with their pieces as one loop (a single copy of the slope to
-    compile) for the duration, on the CPU. The time loop's partials pass traces under it:
-    there the code is multiplied by the tangents and their derivatives, and compile time
-    counts for more than the few per cent of run time a loop costs. Elsewhere the pieces
-    are straight-line code. Values are the same either way."""
+    """Trace batches of intervals (`interval_map_batched`) with their pieces as one loop
+    (a single copy of the slope to compile) for the duration, on the CPU, as a single
+    trajectory's always are. The time loop's partials pass traces under it: there the
+    code is multiplied by the tangents and their derivatives, and compile time counts for
+    more than the few per cent of run time a loop costs. A batch's values pass (a
+    population, where run time counts) keeps its pieces straight-line. Values are the
+    same either way."""
     _COMPACT.append(True)
     try:
         yield
@@ -153,10 +156,10 @@ def compact():
         _COMPACT.pop()
 
 
-def _repeat(n: int, body, carry):
+def _repeat(n: int, body, carry, loop: bool):
     """``body(i, carry)`` for i = 0 … n − 1: a loop (one copy of the body to compile)
-    where `compact` and on the CPU, else unrolled with static i."""
-    if _COMPACT and not on_accelerator():
+    where ``loop`` and on the CPU, else unrolled with static i."""
+    if loop and not on_accelerator():
         return jax.lax.fori_loop(0, n, body, carry)
     for i in range(n):
         carry = body(i, carry)
@@ -224,7 +227,7 @@ def interval_map(variant: AbstractJAVariant, p: Parameters, H0, H1, M0, substeps
         return M, ends.at[i].set(M), starts.at[i].set(k)
 
     empty = jnp.zeros((S + 1,), dtype=jnp.result_type(M0))
-    _, ends, starts = _repeat(S + 1, body, (M0, empty, empty))
+    _, ends, starts = _repeat(S + 1, body, (M0, empty, empty), loop=True)
     return _assemble(ends, starts, theta, S)
 
 
@@ -261,6 +264,6 @@ def interval_map_batched(variant, p, H0, H1, M0, substeps: int):
         return M, ends.at[:, i].set(M), starts.at[:, i].set(k)
 
     empty = jnp.zeros((*jnp.shape(M0), S + 1), dtype=jnp.result_type(M0))
-    _, ends, starts = _repeat(S + 1, body, (M0, empty, empty))
+    _, ends, starts = _repeat(S + 1, body, (M0, empty, empty), loop=bool(_COMPACT))
     M_points, k_points = vm(lambda e, s, t: _assemble(e, s, t, S))(ends, starts, theta)
     return M_points, k_points
