@@ -273,7 +273,12 @@ def _refits_compile_meanwhile_once(problem, starts):
         compiled.threads
     assert sum(n.startswith("Compiling jit(_held_costs) ") for n in compiled.names) == 1
     assert not [t for t in threading.enumerate() if t.name == "jaxhyst-compile-meanwhile"]
-    assert res.report.intervals == identifiability(problem, res.params).intervals
+    # (equal to rounding: the solver's Jacobian is a batch's partials pass, the fresh
+    # one a single trajectory's — the same arithmetic compiled as two programs)
+    fresh = identifiability(problem, res.params).intervals
+    assert res.report.intervals.keys() == fresh.keys()
+    for name, bounds in fresh.items():
+        assert res.report.intervals[name] == pytest.approx(bounds, rel=1e-12, abs=0)
 
 
 @pytest.mark.extended  # (four multi-start fits with profile-checked reports)
