@@ -76,7 +76,8 @@ def _rk4(f, H, M, dH, k1, end: bool = False):
 
     Stages 2–4 (and the end) are a loop around one evaluation of ``f`` rather than copies
     of it: the same arithmetic, a fraction of the code to trace and compile."""
-    out = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(f, H, M))
+    out = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(f, H, M)) \
+        if end else ()
 
     def stage(i, state):
         # i = 1, 2: the midpoint (weight 2); 3: the step's end (weight 1); 4 (``end``
@@ -87,11 +88,11 @@ def _rk4(f, H, M, dH, k1, end: bool = False):
             result = i == 4
             out = f(H + jnp.where(result, dH, h),
                     jnp.where(result, M + (dH / 6.0) * total, M + h * k))
-        else:
-            out = f(H + h, M + h * k)
-        k = out[0]
-        added = total + jnp.where(i == 3, k, 2.0 * k)
-        return k, (jnp.where(result, total, added) if end else added), out
+            k = out[0]
+            added = total + jnp.where(i == 3, k, 2.0 * k)
+            return k, jnp.where(result, total, added), out
+        k = f(H + h, M + h * k)[0]
+        return k, total + jnp.where(i == 3, k, 2.0 * k), ()
 
     _, total, out = jax.lax.fori_loop(1, 5 if end else 4, stage, (k1, k1, out),
                                       unroll=on_accelerator())
@@ -208,7 +209,8 @@ def interval_map(variant: AbstractJAVariant, p: Parameters, H0, H1, M0, substeps
     **Returns:** ``(M_points, k_points)``: M (A/m) at the substep points u_1 … u_S and the
     slope dM/dH (with this interval's direction) at u_0 … u_{S−1}, each shape (S,).
     The located switch and the extra piece are ``lax.cond`` branches, taken only after
-    field reversals; the pieces are one loop (`interval_map_batched` is the same map for a batch).
+    field reversals; on the CPU the pieces are one loop (`interval_map_batched` is the
+    same map for a batch).
     """
     delta = direction_of(H0, H1)
     start = variant.evaluate(H0, M0, delta, p)
