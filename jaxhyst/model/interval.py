@@ -258,7 +258,9 @@ def interval_map_batched(variant, p, H0, H1, M0, substeps: int):
         def piece():
             M1, k = vm(lambda p, H0, H1, M0, k0, theta, M: _piece(
                 variant, p, H0, H1, M0, k0, theta, S, i, M))(p, H0, H1, M0, k0, theta, M)
-            needed = (i < S) | (b_S < 1.0)
+            needed = _needed(i, S, b_S < 1.0)
+            if needed is True:  # (a uniform piece, known while tracing: no select)
+                return M1, k
             return jnp.where(needed, M1, M), jnp.where(needed, k, k0)
 
         # the extra piece (i = S) only where some member's switch falls inside
