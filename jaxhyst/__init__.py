@@ -12,7 +12,11 @@ import contextlib
 import importlib
 import sys
 
-from ._config import cpu_loop_kernels, enable_compilation_cache  # (first: x64, XLA flag)
+from ._config import (  # (first: x64, XLA flags)
+    cpu_kernel_emitters,
+    cpu_loop_kernels,
+    enable_compilation_cache,
+)
 
 __version__ = "0.1.0"
 
@@ -55,7 +59,7 @@ _EXPORTS = {
 _SUBMODULES = ("actuator", "analysis", "batch", "control", "drive", "fit", "identify", "io",
                "loop_times", "model", "names", "params", "plots", "progress", "saved", "sharding")
 
-__all__ = ["cpu_loop_kernels", "enable_compilation_cache", *_EXPORTS]
+__all__ = ["cpu_kernel_emitters", "cpu_loop_kernels", "enable_compilation_cache", *_EXPORTS]
 
 
 def _eager():

@@ -20,6 +20,17 @@ Applied on import (``import jaxhyst`` itself does not import JAX):
   ``JAXHYST_XLA_FLAGS=off``. `cpu_loop_kernels` says whether it is in effect; where it
   cannot be applied (JAX already computing, or XLA_FLAGS setting other backend options)
   a `PerformanceWarning` says so once, at import.
+- **XLA:CPU's older kernel emitters** (``--xla_cpu_use_fusion_emitters=false`` in
+  ``XLA_FLAGS``): XLA:CPU emits each fused kernel either through MLIR (its "fusion
+  emitters", the default of jaxlib 0.10) or through its earlier LLVM emitters. On a fit's
+  step, ~190 kernels, the MLIR path costs most of the compilation; with the earlier
+  emitters the programs of a fit, ``compensate`` and ``simulate`` compile in about
+  30–40 % less time, for the same values (to rounding), while a large population's
+  evaluation runs 10–30 % slower (`benchmarks/RESULTS.md`, issue 45). Applied under the same conditions
+  as the loop setting, and independently of it: not where ``XLA_FLAGS`` names
+  ``xla_cpu_use_fusion_emitters`` itself (``=true`` keeps XLA's default) or
+  ``JAXHYST_XLA_FLAGS=off``; `cpu_kernel_emitters` says whether it is in effect. Where
+  JAX already runs, the loop setting's warning covers both.
 
 Warned about at import: ``XLA_FLAGS`` compiling at LLVM ``-O0``
 (``xla_backend_optimization_level=0``), where the pinning-cell forms compute wrong paths
@@ -40,6 +51,10 @@ from pathlib import Path
 LOOP_THRESHOLD_BYTES = 4194304
 _LOOP_OPTION = f"xla_cpu_small_while_loop_byte_threshold={LOOP_THRESHOLD_BYTES}"
 _loop_flag_state = "not applied"
+#: XLA:CPU's earlier (LLVM) kernel emitters instead of its MLIR fusion emitters: the
+#: flag jaxlib 0.10 knows (pyproject pins jax < 0.11; a later jaxlib may drop it).
+EMITTER_FLAG = "--xla_cpu_use_fusion_emitters=false"
+_emitter_flag_state = "not applied"
 
 
 def _enable_x64() -> None:
@@ -92,11 +107,32 @@ def _apply_loop_flag() -> None:
         _loop_flag_state = "not applied: JAX was already running when jaxhyst was imported"
         warnings.warn("jaxhyst was imported after JAX started computing, so its CPU loop "
                       "setting could not be applied and simulations run several times "
-                      f"slower on the CPU; import jaxhyst before the first JAX computation, "
-                      f"or {fix}.", PerformanceWarning, stacklevel=3)
+                      "slower on the CPU (and compile ~40 % slower: nor could its emitter "
+                      "setting); import jaxhyst before the first JAX computation, "
+                      f"or {fix} {EMITTER_FLAG}.", PerformanceWarning, stacklevel=3)
         return
     os.environ["XLA_FLAGS"] = (flags + " --xla_backend_extra_options=" + _LOOP_OPTION).strip()
     _loop_flag_state = "in effect"
+
+
+def _apply_emitter_flag() -> None:
+    """Add `EMITTER_FLAG` to XLA_FLAGS if JAX has not started, the user has not turned
+    jaxhyst's flags off, and XLA_FLAGS does not choose the emitters itself (no warning of
+    its own: where JAX already runs, `_apply_loop_flag`'s warning is the one)."""
+    global _emitter_flag_state
+    if os.environ.get("JAXHYST_XLA_FLAGS", "").strip().lower() in ("off", "0", "false", "no"):
+        _emitter_flag_state = "disabled by JAXHYST_XLA_FLAGS"
+        return
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_cpu_use_fusion_emitters" in flags:
+        _emitter_flag_state = ("in effect (set by the user)" if EMITTER_FLAG in flags.split()
+                               else "not applied: XLA_FLAGS chooses the emitters")
+        return
+    if _backends_initialized():
+        _emitter_flag_state = "not applied: JAX was already running when jaxhyst was imported"
+        return
+    os.environ["XLA_FLAGS"] = (flags + " " + EMITTER_FLAG).strip()
+    _emitter_flag_state = "in effect"
 
 
 def _check_optimization_level() -> None:
@@ -115,8 +151,15 @@ def cpu_loop_kernels() -> str:
     return _loop_flag_state
 
 
+def cpu_kernel_emitters() -> str:
+    """Whether jaxhyst's XLA:CPU emitter setting (`EMITTER_FLAG`) is in effect (see the
+    module docstring)."""
+    return _emitter_flag_state
+
+
 _enable_x64()
 _apply_loop_flag()
+_apply_emitter_flag()
 _check_optimization_level()
 
 

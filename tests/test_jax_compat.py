@@ -73,6 +73,75 @@ def test_the_xla_loop_setting_is_in_effect():
     assert jh.cpu_loop_kernels().startswith("in effect"), jh.cpu_loop_kernels()
 
 
+def test_the_xla_emitter_setting_is_in_effect():
+    assert jh.cpu_kernel_emitters().startswith("in effect"), jh.cpu_kernel_emitters()
+
+
+_EMITTER_CHECK = """
+import json, os, numpy as np, jax, jaxhyst as jh
+drive = jh.sinusoidal_current(100.0, 0.77, 1.53, jh.ACTUATOR1, samples_per_period=64)
+out = {"state": jh.cpu_kernel_emitters(), "flags": os.environ.get("XLA_FLAGS", "")}
+for name, form in (("energy", jh.EnergyBasedJA()), ("play", jh.PlayJA(spread=0.6, cells=8))):
+    y = lambda x: jh.simulate_unchecked(jh.Parameters.from_array(x), jh.ACTUATOR1, drive,
+                                        form).M
+    x = jh.TABLE1_TRUE.to_array()
+    out[name] = np.asarray(y(x)).tolist()
+    out[name + "_jac"] = np.asarray(jax.jit(jax.jacfwd(y))(x)).tolist()
+print(json.dumps(out))
+"""
+
+
+def test_the_two_emitters_give_the_same_paths_and_jacobians():
+    """XLA:CPU's earlier kernel emitters (jaxhyst's default, for compile time) and its MLIR
+    fusion emitters (where the user chooses them) give the same paths and Jacobians of
+    the JA and pinning-cell forms (the two processes run side by side)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    base = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS",
+                                                             "JAXHYST_XLA_FLAGS")}
+    procs = [subprocess.Popen([sys.executable, "-c", _EMITTER_CHECK], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True, env={**base, **extra})
+             for extra in ({}, {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"})]
+    runs = []
+    for p in procs:
+        out, err = p.communicate(timeout=300)
+        assert p.returncode == 0, err
+        runs.append(json.loads(out.strip().splitlines()[-1]))
+    assert runs[0]["state"] == "in effect", runs[0]["state"]
+    assert runs[1]["state"].startswith("not applied: XLA_FLAGS chooses"), runs[1]["state"]
+    for key in ("energy", "energy_jac", "play", "play_jac"):
+        a, b = np.asarray(runs[0][key]), np.asarray(runs[1][key])
+        np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-11 * np.max(np.abs(a)),
+                                   err_msg=key)
+
+
+@pytest.mark.parametrize("env, state, applied", [
+    ({}, "in effect", True),
+    ({"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=false"}, "in effect (set by the user)",
+     True),
+    ({"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"}, "not applied: XLA_FLAGS", False),
+    ({"JAXHYST_XLA_FLAGS": "off"}, "disabled by JAXHYST_XLA_FLAGS", False)])
+def test_the_emitter_setting_is_applied_unless_the_user_chooses(env, state, applied):
+    import os
+    import subprocess
+    import sys
+
+    base = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS",
+                                                             "JAXHYST_XLA_FLAGS")}
+    code = ("import os, jaxhyst\nprint(jaxhyst.cpu_kernel_emitters())\n"
+            "print(os.environ.get('XLA_FLAGS', ''))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       env={**base, **env}, timeout=120)
+    assert r.returncode == 0, r.stderr
+    got, flags = (r.stdout.strip().splitlines() + [""])[:2]
+    assert got.startswith(state), got
+    assert ("--xla_cpu_use_fusion_emitters=false" in flags.split()) == applied, flags
+    assert "PerformanceWarning" not in r.stderr, r.stderr
+
+
 @pytest.mark.parametrize("setup, env", [
     ("import jax; jax.numpy.ones(2).sum().block_until_ready()", {}),  # JAX started first
     ("", {"XLA_FLAGS": "--xla_backend_extra_options=xla_cpu_enable_fast_math=false"}),
