@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from .._background import meanwhile
 from .._background import settled as _settled
 from .._traces import kept_jit
 from ..model.simulate import plain_vmap
@@ -228,10 +229,13 @@ class SteppedSolve:
     A batch of several starts ends once a start has converged below every other's cost
     and none of the others can catch up (`left_behind`); those are reported
     ``overtaken`` (``self.overtaken``: their mask) instead of running to their own end —
-    the slowest start no longer sets the time."""
+    the slowest start no longer sets the time. ``finish_meanwhile``: the end's program
+    compiles in a background thread while the first chunk's compiles (`jaxhyst._background`;
+    for a solve that runs once, not a hybrid's search inside every generation); `drop`
+    it where the solve is left on an error."""
 
     def __init__(self, problem: AbstractProblem, solver, z0s, max_steps: int,
-                 with_cost: bool = False):
+                 with_cost: bool = False, finish_meanwhile: bool = False):
         self.problem, self.solver, self.max_steps = problem, solver, np.int64(max_steps)
         self.early = np.shape(z0s)[0] > 1
         self.with_cost = bool(with_cost) or self.early
@@ -244,6 +248,8 @@ class SteppedSolve:
         self.chunk, self.costs, self.started = 1, None, time.perf_counter()
         self.best_before = None  # (the best cost at the last check: `_settling`)
         self.linearizations = None
+        # (`_finish_batch` compiled meanwhile, where asked: `advance`; False once done)
+        self.finishing = None if finish_meanwhile else False
 
     def done(self, carry) -> bool:
         # (host scalars: jnp.asarray of one compiles a program of its own on first use)
@@ -279,6 +285,11 @@ class SteppedSolve:
             self.best_before = now
 
     def advance(self, carry):
+        if self.finishing is None and self.tracing is contextlib.nullcontext:
+            # (the end's program, compiled in a background thread once this step's is
+            # lowered, while XLA compiles that: its inputs have this carry's shapes)
+            problem, solver = self.problem, self.solver
+            self.finishing = meanwhile(lambda: _finish_batch(problem, solver, carry)) or False
         t0 = time.perf_counter()
         with self.tracing():
             carry, costs = _advance_batch(self.problem, self.solver, carry,
@@ -289,6 +300,13 @@ class SteppedSolve:
             self.chunk = min(self.chunk * 2, 64)
         self.costs = costs
         return carry
+
+    def drop(self) -> None:
+        """Drop the end's background compile if it has not started (a solve left on an
+        error; `outputs` joins it)."""
+        if self.finishing:
+            self.finishing.drop()
+            self.finishing = False
 
     def describe(self, carry) -> tuple[int, str]:
         steps = int(np.max(np.asarray(carry[1])))
@@ -303,6 +321,9 @@ class SteppedSolve:
         host values (``results`` a batch of `RESULTS`). ``self.linearizations`` is then
         (∂r/∂z (K, R, n), r (K, R)) at each z, NaN for a solve that accepted no step, or
         None (a solver outside the Gauss–Newton family)."""
+        if self.finishing:
+            self.finishing.join()
+            self.finishing = False
         # on the host at once (indexing device arrays compiles a small program per shape)
         with self.tracing():
             *out, known, linear = jax.device_get(_finish_batch(self.problem, self.solver,

@@ -30,11 +30,15 @@ def stepped_solve(problem: AbstractProblem, solver, z0s, max_steps: int, meter,
     ``"keyboard"``, the solver's linearizations at each z: `SteppedSolve.outputs`). A
     stopped solve's results are `RESULTS.interrupted`."""
     run = SteppedSolve(problem, solver, z0s, max_steps,
-                       with_cost=not isinstance(meter, NoProgressMeter))
+                       with_cost=not isinstance(meter, NoProgressMeter), finish_meanwhile=True)
     meter_state = meter.init(label, int(max_steps))
-    carry, how, meter_state = drive(run.state, advance=run.advance, done=run.done,
-                                    describe=run.describe, meter=meter,
-                                    meter_state=meter_state)
+    try:
+        carry, how, meter_state = drive(run.state, advance=run.advance, done=run.done,
+                                        describe=run.describe, meter=meter,
+                                        meter_state=meter_state)
+    except BaseException:
+        run.drop()
+        raise
     out = run.outputs(carry)
     linear = run.linearizations
     overtaken = 0 if run.overtaken is None else int(np.sum(run.overtaken))
