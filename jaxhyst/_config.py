@@ -25,8 +25,8 @@ Applied on import (``import jaxhyst`` itself does not import JAX):
   emitters", the default of jaxlib 0.10) or through its earlier LLVM emitters. On a fit's
   step, ~190 kernels, the MLIR path costs most of the compilation; with the earlier
   emitters the programs of a fit, ``compensate`` and ``simulate`` compile in about
-  30–40 % less time, for the same values (to rounding), while a large population's
-  evaluation runs 10–30 % slower (`benchmarks/RESULTS.md`, issue 45). Applied under the
+  30–40 % less time, for the same values (to rounding), and run 0–16 % slower (a
+  population of 120 by ~6 %; `benchmarks/RESULTS.md`, issue 45). Applied under the
   same conditions as the loop setting, and independently of it: not where ``XLA_FLAGS``
   names ``xla_cpu_use_fusion_emitters`` itself (``=true`` keeps XLA's default) or
   ``JAXHYST_XLA_FLAGS=off``; `cpu_kernel_emitters` says whether it is in effect. Where
