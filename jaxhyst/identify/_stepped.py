@@ -151,7 +151,7 @@ def _per_start(f, batch):
     """``jax.vmap(f)(batch)`` over a batch's starts (its leading axis) — or, for a batch
     of one start, ``f`` of that start with the axis put back: traced without the batching
     interpreter and run by the model's single-trajectory code (a solve's step traces in
-    about half the time and compiles a smaller program; `benchmarks/RESULTS.md`)."""
+    under half the time; `benchmarks/RESULTS.md`, issue 45)."""
     if jax.tree.leaves(batch)[0].shape[0] != 1:
         return jax.vmap(f)(batch)
     return jax.tree.map(lambda x: jnp.asarray(x)[None], f(jax.tree.map(lambda x: x[0], batch)))
