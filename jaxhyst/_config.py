@@ -105,11 +105,13 @@ def _apply_loop_flag() -> None:
         return
     if _backends_initialized():
         _loop_flag_state = "not applied: JAX was already running when jaxhyst was imported"
+        both = (f"set XLA_FLAGS='--xla_backend_extra_options={_LOOP_OPTION} {EMITTER_FLAG}' "
+                "before starting Python (JAXHYST_XLA_FLAGS=off silences this)")
         warnings.warn("jaxhyst was imported after JAX started computing, so its CPU loop "
-                      "setting could not be applied and simulations run several times "
-                      "slower on the CPU (and compile ~40 % slower: nor could its emitter "
-                      "setting); import jaxhyst before the first JAX computation, "
-                      f"or {fix} {EMITTER_FLAG}.", PerformanceWarning, stacklevel=3)
+                      "and emitter settings could not be applied: simulations run several "
+                      "times slower on the CPU and compile ~40 % slower; import jaxhyst "
+                      f"before the first JAX computation, or {both}.", PerformanceWarning,
+                      stacklevel=3)
         return
     os.environ["XLA_FLAGS"] = (flags + " --xla_backend_extra_options=" + _LOOP_OPTION).strip()
     _loop_flag_state = "in effect"
