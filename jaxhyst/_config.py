@@ -83,11 +83,17 @@ class PerformanceWarning(RuntimeWarning):
     slower on the CPU (see `jaxhyst._config`)."""
 
 
+def _flags_off() -> bool:
+    """Whether the user turned jaxhyst's XLA flags off (``JAXHYST_XLA_FLAGS=off``)."""
+    return os.environ.get("JAXHYST_XLA_FLAGS", "").strip().lower() in ("off", "0", "false",
+                                                                        "no")
+
+
 def _apply_loop_flag() -> None:
     """Add jaxhyst's loop option to XLA_FLAGS if JAX has not started; warn once (a
     `PerformanceWarning`) where it cannot take effect and the user did not turn it off."""
     global _loop_flag_state
-    if os.environ.get("JAXHYST_XLA_FLAGS", "").strip().lower() in ("off", "0", "false", "no"):
+    if _flags_off():
         _loop_flag_state = "disabled by JAXHYST_XLA_FLAGS"
         return
     flags = os.environ.get("XLA_FLAGS", "")
@@ -122,7 +128,7 @@ def _apply_emitter_flag() -> None:
     jaxhyst's flags off, and XLA_FLAGS does not choose the emitters itself (no warning of
     its own: where JAX already runs, `_apply_loop_flag`'s warning is the one)."""
     global _emitter_flag_state
-    if os.environ.get("JAXHYST_XLA_FLAGS", "").strip().lower() in ("off", "0", "false", "no"):
+    if _flags_off():
         _emitter_flag_state = "disabled by JAXHYST_XLA_FLAGS"
         return
     flags = os.environ.get("XLA_FLAGS", "")
