@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ._files import write_text
+from .columns import QUANTITIES, DataError, parse_column  # noqa: F401  (jaxhyst.io's names)
 from .model.simulate import Simulation
 from .params import NAMES, Bounds, Parameters
 
@@ -34,28 +35,6 @@ SIMULATION_COLUMNS = (
     ("Mirr", "Mirr_A_per_m"), ("lam", "lambda"), ("y", "y_m"), ("strain", "strain"),
 )  # fmt: skip
 
-_PER_M = {"A/m": 1.0, "A_per_m": 1.0, "kA/m": 1e3, "kA_per_m": 1e3, "Oe": 1e3 / (4 * np.pi)}
-_DIMLESS = {"": 1.0, "1": 1.0, "ppm": 1e-6}
-
-#: Quantities a data file may hold: name → (aliases, description, SI unit, {unit: factor}).
-QUANTITIES = {
-    "loop": ((), "loop index", "", {"": 1.0}),
-    "t": (("time",), "time", "s", {"s": 1.0, "ms": 1e-3, "us": 1e-6, "μs": 1e-6}),
-    "H": (("field",), "applied field", "A/m", _PER_M),
-    "I": (("current",), "coil current", "A", {"A": 1.0, "mA": 1e-3}),
-    "y": (("displacement",), "displacement", "m",
-          {"m": 1.0, "mm": 1e-3, "um": 1e-6, "μm": 1e-6, "nm": 1e-9}),
-    "strain": ((), "strain", "1", _DIMLESS),
-    "lambda": (("magnetostriction", "lam"), "magnetostriction", "1", _DIMLESS),
-    "M": (("magnetization",), "magnetization", "A/m", _PER_M),
-    "Man": ((), "anhysteretic magnetization", "A/m", _PER_M),
-    "Mirr": ((), "irreversible magnetization", "A/m", _PER_M),
-    "B": (("flux_density",), "flux density", "T", {"T": 1.0, "mT": 1e-3}),
-    "frequency": (("f", "freq"), "drive frequency of the loop", "Hz",
-                  {"Hz": 1.0, "kHz": 1e3}),
-    "temperature": (("temp",), "temperature of the loop", "°C", {"°C": 1.0, "C": 1.0}),
-}  # fmt: skip
-
 #: Per-loop conditions (constant within a loop; `Loop.conditions`).
 CONDITION_COLUMNS = ("frequency", "temperature")
 
@@ -64,10 +43,6 @@ SIGNAL_OUTPUTS = {"y": "displacement", "strain": "strain", "lambda": "magnetostr
                   "M": "magnetization", "B": "flux_density"}
 
 MIN_SAMPLES = 8
-
-
-class DataError(ValueError):
-    """A data or parameter file cannot be used; the message says why and how to fix it."""
 
 
 @dataclass
@@ -89,44 +64,6 @@ class Loop:
             if a is not None:
                 return int(a.shape[0])
         return 0
-
-
-def parse_column(name: str) -> tuple[str, float]:
-    """Quantity and SI factor of a header entry (``H [kA/m]``, ``y_um``, ``B (T)``, ``t``)."""
-    raw = name.strip()
-    m = re.fullmatch(r"(.+?)\s*[\[(]\s*(.*?)\s*[\])]", raw)
-    if m:
-        qname, unit = m.group(1).strip(), m.group(2)
-    else:
-        qname, unit = raw, None
-        if raw not in QUANTITIES and "_" in raw:
-            head, tail = raw.split("_", 1)
-            if _lookup(head) is not None:
-                qname, unit = head, tail
-    q = _lookup(qname)
-    if q is None:
-        known = ", ".join(f"{n} [{v[2] or '1'}]" for n, v in QUANTITIES.items())
-        paired = _lookup(re.sub(r"[\s_]*\d+$", "", qname)) is not None  # (H1, B_2 …)
-        raise DataError(f"column {raw!r} is not a known quantity; known columns: {known} " +
-                        ("(loops side by side? put them one below the other, with a 'loop' "
-                         "column: loop,H,B) " if paired else "") + "(rename the column, or "
-                        "name the columns with --columns, '-' for one to skip).")
-    _, desc, si, units = QUANTITIES[q]
-    if unit is None:
-        return q, 1.0
-    if unit not in units:
-        raise DataError(f"column {raw!r}: unit {unit!r} is not a unit of {desc} {q}; use one of "
-                        f"{', '.join(u for u in units if u) or 'none (dimensionless)'}.")
-    return q, units[unit]
-
-
-def _lookup(name: str) -> str | None:
-    if name in QUANTITIES:
-        return name
-    for q, (aliases, *_rest) in QUANTITIES.items():
-        if name.lower() in aliases or name.lower() == q.lower() and q not in ("M", "B", "H"):
-            return q
-    return None
 
 
 def _fast_table(body, delim, n_columns: int) -> np.ndarray | None:
@@ -221,8 +158,11 @@ def read_loops(path, columns: list[str] | str | None = None, *,
     parsed = [parse_column(columns[j]) for j in kept]
     names = [q for q, _ in parsed]
     dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise DataError(f"{path.name}: quantity {dup} appears in more than one column.")
+    if dup:  # (a polarization J is read as M: J and M columns are one quantity)
+        where = ", ".join(repr(columns[j].strip()) for j, q in zip(kept, names, strict=True)
+                          if q == dup[0])
+        raise DataError(f"{path.name}: quantity {dup[0]} appears in more than one column "
+                        f"({where}); keep one (name the others '-' with --columns).")
     if drive and "H" not in names and "I" not in names:
         raise DataError(f"{path.name} has neither a field column H [A/m] nor a current column "
                         "I [A]; the drive must be given.")

@@ -185,6 +185,34 @@ def test_read_loops_units_headers_delimiters_and_loop_column(tmp_path):
         read_loops(h)
 
 
+def test_cgs_units_and_a_polarization_column_are_read_in_si(tmp_path):
+    """Literature loops often come in oersteds and gauss, or as the polarization J = μ0·M
+    of an Epstein frame: each is read in SI, J as the magnetization it is."""
+    from jaxhyst.io import DataError, parse_column, read_loops
+
+    mu0 = 4e-7 * np.pi
+    rows = [(h, b) for h, b in zip(np.linspace(-1, 1, 12), np.linspace(-0.5, 0.5, 12),
+                                   strict=True)]
+    f = tmp_path / "cgs.csv"
+    f.write_text("H_Oe,B [kG]\n" + "".join(f"{h},{b}\n" for h, b in rows))
+    (lp,) = read_loops(f)
+    np.testing.assert_allclose(lp.H, [h * 1e3 / (4 * np.pi) for h, _ in rows])
+    np.testing.assert_allclose(lp.signals["B"], [0.1 * b for _, b in rows])
+    g = tmp_path / "epstein.csv"
+    g.write_text("H [A/m],J [T]\n" + "".join(f"{h},{b}\n" for h, b in rows))
+    (lp,) = read_loops(g)
+    assert list(lp.signals) == ["M"]
+    np.testing.assert_allclose(lp.signals["M"] * mu0, [b for _, b in rows])
+    assert parse_column("M_emu_per_cm3") == ("M", 1e3)
+    assert parse_column("polarization (mT)") == ("M", pytest.approx(1e-3 / mu0))
+    with pytest.raises(DataError, match="not a unit of polarization J; use one of T, mT"):
+        parse_column("J_G")
+    h = tmp_path / "both.csv"  # (J and M are one quantity: named as a duplicate)
+    h.write_text("H,J_T,M\n" + "".join(f"{a},{b},{b}\n" for a, b in rows))
+    with pytest.raises(DataError, match="quantity M appears in more than one column"):
+        read_loops(h)
+
+
 def test_a_pipe_is_read_like_a_file_and_a_device_is_not_called_missing(tmp_path):
     """bash's ``<(…)`` hands a pipe (/dev/fd/N): it is read like a file; /dev/null is
     empty, not "does not exist"; a directory given as a result file is named so."""
