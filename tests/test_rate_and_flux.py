@@ -293,8 +293,9 @@ def test_a_b_driven_fit_from_the_command_line_saves_a_model_driven_by_b(tmp_path
     assert saved.actuator.name == NO_ACTUATOR.name and isinstance(saved.variant, jh.ClassicJA)
     from jaxhyst.saved import read_header
 
-    assert read_header(model)["meta"]["fitted_conditions"]["amplitude"] == \
-        [pytest.approx(float(np.max(np.abs(H))))] * 2  # (the peak field of the loop fitted)
+    meta = read_header(model)["meta"]  # (a B-driven fit's amplitude: its peak flux density)
+    assert meta["fitted_conditions"]["amplitude"] == [pytest.approx(float(np.max(np.abs(B))))] * 2
+    assert meta["amplitude_unit"] == "T"
     assert main(["simulate", "--model", str(model), "--flux-amplitude", "0.3", "--frequency",
                  "50", "--samples-per-period", "80", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
@@ -306,6 +307,51 @@ def test_a_b_driven_fit_from_the_command_line_saves_a_model_driven_by_b(tmp_path
         assert message in capsys.readouterr().err
     data.write_text("H [A/m],B [T]\n1,0.1\n2,0.2\n")
     assert main(["identify", str(data), "--driven-by", "B"]) == 2
+
+
+def test_a_b_driven_fit_predicts_each_loops_field_from_its_b(tmp_path, capsys):
+    """``predict`` of a B-driven fit (result file and saved model alike): each loop of a
+    file driven by its B(t) — the fitted model's H, as `simulate_flux` gives it, compared
+    with the loop's H where the file has one; a file of B(t) alone predicted too; the
+    amplitude of the fitted range in teslas; --amplitude (a field's) refused in one line."""
+    import json
+
+    from jaxhyst.cli import main
+
+    drive = jh.sinusoidal_flux(50.0, 0.3, samples_per_period=60)
+    sim = jh.simulate_flux(SOFT, drive, jh.ClassicJA(), substeps=2)
+    t, H, B = (np.asarray(sim.observed(q)) for q in ("t", "H", "B"))
+    data = tmp_path / "bh.csv"
+    data.write_text("t [s],H [A/m],B [T]\n" + "".join(
+        f"{float(a - t[0])!r},{float(h)!r},{float(b)!r}\n" for a, h, b in zip(t, H, B,
+                                                                               strict=True)))
+    result, model = tmp_path / "r.json", tmp_path / "m.eqx"
+    assert main(["identify", str(data), "--driven-by", "B", "--variant", "classic",
+                 "--starts", "1", "--max-steps", "2", "--intervals", "linear", "--out", str(result),
+                 "--save-model", str(model), "--progress", "0"]) in (0, 3)
+    capsys.readouterr()
+    fitted = json.loads(result.read_text())["params"]
+    p = SOFT.replace(**{n: fitted[n]["value"] for n in ("Ms", "a", "k", "alpha", "c")})
+    again = jh.flux_from_record(t - t[0], B, run_in_periods=1)
+    expected = np.asarray(jh.simulate_flux(p, again, jh.ClassicJA()).H)[again.run_in:]
+    rms = float(np.sqrt(np.mean((expected - H) ** 2)))
+    for source in (result, model):
+        out = tmp_path / f"{source.suffix[1:]}.csv"
+        assert main(["predict", str(source), str(data), "--out", str(out), "--json"]) == 0
+        (row,) = json.loads(capsys.readouterr().out)["loops"]
+        assert row["rms"] == pytest.approx(rms, rel=1e-9) and row["extrapolation"] == ""
+        table = np.genfromtxt(out, delimiter=",", names=True)
+        np.testing.assert_allclose(table["B_T"], B)
+        np.testing.assert_allclose(table["predicted"], expected, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(table["data"], H)
+    alone = tmp_path / "b.csv"  # (B(t) at a higher peak, no H: predicted, not compared)
+    alone.write_text("t,B\n" + "".join(f"{float(a - t[0])!r},{1.2 * float(b)!r}\n"
+                                       for a, b in zip(t, B, strict=True)))
+    assert main(["predict", str(model), str(alone), "--json"]) == 0
+    (row,) = json.loads(capsys.readouterr().out)["loops"]
+    assert "rms" not in row and row["extrapolation"].startswith("amplitude (0.36 T")
+    assert main(["predict", str(result), str(data), "--amplitude", "50"]) == 2
+    assert "a B-driven fit (--driven-by B)" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("name, value, driven_by", [  # (command-line fits: the extended

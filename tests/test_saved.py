@@ -212,7 +212,8 @@ def test_a_saved_material_model_predicts_a_file_of_fields_or_of_several_signals(
     """``predict MODEL.eqx DATA`` predicts the signal the model was fitted to: compared
     where the file has it (among others), written without comparison where the file
     has fields only (both used to stop with advice to pass an --output that predict
-    does not have); a model fitted driven by B is sent to ``simulate`` in one line."""
+    does not have); a model fitted driven by B, driven by each loop's B(t), asks in one
+    line for the t column a file of B without times lacks."""
     from jaxhyst.cli import main
     from jaxhyst.identify.joint import NO_ACTUATOR
 
@@ -241,4 +242,4 @@ def test_a_saved_material_model_predicts_a_file_of_fields_or_of_several_signals(
     jh.save_model(by_B, material, output="field")
     assert main(["predict", str(by_B), str(both)]) == 2
     err = capsys.readouterr().err
-    assert "fitted driven by B" in err and "jaxhyst simulate --model" in err
+    assert "has no t column" in err and "driven by its B(t)" in err

@@ -39,7 +39,7 @@ def split_candidate(candidate: str) -> tuple[str, list[str], str]:
 def _spans_amplitudes(loops, by_B: bool = False, factor: float = 1.1) -> bool:
     """Three loops or more whose amplitudes lie more than ``factor`` apart without any
     one of them: every fold's training loops span amplitudes (a law in the amplitude
-    needs two). The amplitude is the one the law reads (`problems.law_conditions`): the
+    needs two). The amplitude is the one the law reads (`problems.loop_conditions`): the
     peak drive |H| or |I|, or the peak flux density |B| where ``by_B`` (a B-driven fit)."""
     import numpy as np
 
@@ -60,7 +60,7 @@ def _check_fold_laws(spec, loops, forms) -> None:
     amplitude, say, fix no slope in it."""
     import jaxhyst as jh
 
-    from .problems import law_conditions, parse_vary
+    from .problems import loop_conditions, parse_vary
 
     laws = {f: {**parse_vary(spec.get("vary")), **parse_vary(split_candidate(f)[2])}
             for f in forms}
@@ -70,7 +70,7 @@ def _check_fold_laws(spec, loops, forms) -> None:
     actuator = jh.Actuator(**spec["actuator"])
     for i, held in enumerate(loops):
         train = loops[:i] + loops[i + 1:]
-        c = law_conditions(spec, train, actuator)
+        c = loop_conditions(spec, train, actuator)
         for form, law in laws.items():
             why = jh.ConditionModel(law, int(spec.get("vary_degree", 1))).undetermined(c)
             if why:

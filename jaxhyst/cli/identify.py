@@ -286,8 +286,7 @@ def run(args) -> int:
     if where and args.progress:  # (after every check of the input: errors stay one line)
         note("identify", where)
     thinned = None if result else decimated_first(args, spec, loops, problem, method)
-    # (the kept form's folds, each fitted to all loops but one, among the final fit's
-    # starts: a cost with local minima is searched from near its optimum too)
+    # (the kept form's folds among the final fit's starts: near its optimum too)
     seeds = [problem.space.params_from_free(x) for names, x in folds
              if names == tuple(problem.space.names)]
     result = result or thinned or fit_by_options(args, problem, method, start, seeds=seeds)
@@ -325,6 +324,7 @@ def run(args) -> int:
                       identifiability=json_safe(d.get("identifiability")),
                       fitted_conditions=fitted_range(spec, getattr(records, "actuator", None),
                                                      strict=False),
+                      amplitude_unit="T" if spec.get("driven_by") == "B" else "A/m",
                       expected_error=expected_error(d),
                       problem={**spec, "data": _portable_path(spec["data"], args.save_model)})
     wrote = [f for f in (args.out, args.save_model, *figures) if f]

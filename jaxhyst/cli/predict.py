@@ -26,8 +26,9 @@ def add_parser(sub) -> None:
         description="Predict the loops of a data file (default: the fitted data) from a "
         "result of 'jaxhyst identify --out': a condition model (--vary) is evaluated at "
         "each loop's frequency, temperature (the file's columns, or --frequency and "
-        "--temperature) and peak field; shared parameters are used as fitted. Writes the "
-        "prediction (and the error where the file has data).")
+        "--temperature) and peak field; shared parameters are used as fitted. A fit driven "
+        "by B (--driven-by B) predicts each loop's H from its B(t) (peak B the amplitude). "
+        "Writes the prediction (and the error where the file has data).")
     parser.add_argument("result", help="result JSON from identify --out, or a saved model "
                         "(.eqx, identify --save-model: then give the data file)")
     parser.add_argument("data", nargs="?", help="data file of the loops to predict "
@@ -42,7 +43,7 @@ def add_parser(sub) -> None:
                         "each loop's field scaled to it (the loop's shape kept); the file's "
                         "data, measured at its own amplitude, are then not compared")
     parser.add_argument("--out", help="write the prediction here (CSV: loop, H, predicted, "
-                        "data, error; SI units)")
+                        "data, error; SI units; B in place of H for a B-driven fit)")
     parser.add_argument("--png", help="draw the predicted loops (with the data they are "
                         "compared with) here: .png, .pdf or .svg")
     parser.add_argument("--json", action="store_true",
@@ -65,6 +66,7 @@ def run(args) -> int:
         expect,
         expected_error,
         fitted_range,
+        flux_curves,
         nearest_loop,
         nearest_of,
         outside,
@@ -83,12 +85,14 @@ def run(args) -> int:
         return run_model(args)
     check_outputs(args)
     saved, spec, fitted, params = load_result(args.result)
-    if isinstance(records_of(fitted), jh.FluxProblem):
-        raise CLIError(f"{args.result} is a B-driven fit (--driven-by B): predict reads "
-                       "H-driven fits; simulate its saved model (identify --save-model) with "
-                       "'jaxhyst simulate --model FILE --flux-amplitude B --frequency F'.")
+    by_flux = isinstance(records_of(fitted), jh.FluxProblem)  # (H predicted from B(t))
+    if by_flux and args.amplitude is not None:
+        raise CLIError(f"--amplitude scales a loop's field; {args.result} is a B-driven fit "
+                       "(--driven-by B), whose loops are driven by their B(t): give a file "
+                       "of the B(t) to predict.")
     source = args.data or spec["data"]
-    loops = select_loops(read_data(source, spec.get("columns")), args.loop, source)
+    loops = select_loops(read_data(source, spec.get("columns"), drive=not by_flux), args.loop,
+                         source)
     overrides = {"frequency": args.frequency, "temperature": args.temperature}
     nearest = nearest_of(spec)  # (a fit that kept the nearest-condition baseline)
     varies = fitted.form.features if isinstance(fitted, jh.ConditionProblem) else \
@@ -100,7 +104,7 @@ def run(args) -> int:
                  "(identify --vary); only the loop's field changes." if name == "amplitude"
                  else f"--{name}: the fitted model does not vary with the {name} "
                  "(identify --vary); it has no effect on the prediction.")
-    actuator = records_of(fitted).actuator
+    actuator = getattr(records_of(fitted), "actuator", None)  # (None: driven by B)
     elsewhere = _elsewhere(loops, overrides, args.amplitude)
     if args.amplitude is not None:
         loops = [scaled_loop(lp, args.amplitude, actuator, source) for lp in loops]
@@ -113,8 +117,10 @@ def run(args) -> int:
     rows, columns = [], {"loop": [], "H_A_per_m": [], "predicted": [], "data": [],
                          "error": []}
     curves = []
+    if by_flux:  # (the driving B the first column; H predicted, compared with H)
+        columns = {"B_T" if k == "H_A_per_m" else k: v for k, v in columns.items()}
     for lp, (pred, data) in zip(loops, predictions, strict=True):
-        H = np.asarray(loop_field(lp, actuator, source))
+        H = np.asarray(lp.signals["B"] if by_flux else loop_field(lp, actuator, source))
         row = {"loop": lp.index, "samples": int(pred.shape[0])}
         if elsewhere.get(lp.index):
             row["not_compared"] = elsewhere[lp.index]
@@ -124,16 +130,16 @@ def run(args) -> int:
         curves.append((f"loop {lp.index}", H[-pred.shape[0]:], pred, data))
         rows.append(row)
         columns["loop"].append(np.full(pred.shape, lp.index, dtype=float))
-        columns["H_A_per_m"].append(H[-pred.shape[0]:])
+        columns["B_T" if by_flux else "H_A_per_m"].append(H[-pred.shape[0]:])
         columns["predicted"].append(pred)
         nan = np.full(pred.shape, np.nan)
         columns["data"].append(nan if data is None else data)
         columns["error"].append(nan if data is None else pred - data)
     expected = expected_error(saved)
-    fitted_conditions = fitted_range(spec, records_of(fitted).actuator)
+    fitted_conditions = fitted_range(spec, actuator)
     for lp, row in zip(loops, rows, strict=True):
         row["extrapolation"], far = outside({**spec, "data": source}, lp,
-                                            records_of(fitted).actuator, fitted_conditions,
+                                            actuator, fitted_conditions,
                                             overrides)
         expect(row, far, expected)
         if nearest is not None:  # (which fitted loop's set predicted it)
@@ -143,8 +149,9 @@ def run(args) -> int:
         from jaxhyst.plots import plot_predictions
 
         records = records_of(fitted)
-        plot_predictions(curves, records.output if records.output != "mixed"
-                         else records.outputs[0], args.png,
+        kind = "flux_density" if by_flux else records.output if records.output != "mixed" \
+            else records.outputs[0]
+        plot_predictions(flux_curves(curves) if by_flux else curves, kind, args.png,
                          title=f"predicted by {os.path.basename(args.result)}")
     if args.out:
         write_columns_csv(args.out, {k: np.concatenate(v) for k, v in columns.items()})

@@ -1,7 +1,8 @@
 """``jaxhyst predict MODEL.eqx DATA``: a saved model (``identify --save-model``) predicts
 the loops of a data file, each driven by its own field — a condition law evaluated at
 each loop's frequency and temperature (the file's columns, or ``--frequency`` and
-``--temperature``) and peak field — with its error against the loop's signal."""
+``--temperature``) and peak field — with its error against the loop's signal; a model
+fitted driven by B, each loop by its B(t) (peak B the amplitude), its H predicted."""
 
 from __future__ import annotations
 
@@ -33,11 +34,14 @@ def run_model(args) -> int:
     from .predictions import (
         error_summary,
         expect,
+        flux_curves,
+        flux_drive,
         nearest_loop,
         outside,
         prediction_line,
         scaled_loop,
     )
+    from .problems import flux_of
 
     check_outputs(args)
     if not args.data:
@@ -46,40 +50,57 @@ def run_model(args) -> int:
     saved = read_model(args.result)
     meta = read_header(args.result).get("meta", {})
     problem = meta.get("problem")  # (the spec it was fitted with)
-    if meta.get("output") == "field" or (problem or {}).get("driven_by") == "B":
-        raise CLIError(f"{args.result} is a model fitted driven by B (--driven-by B): "
-                       "predict drives each loop by its field; simulate the model driven by "
-                       f"B with 'jaxhyst simulate --model {args.result} --flux-amplitude B "
-                       "--frequency F'.")
+    by_flux = meta.get("output") == "field" or (problem or {}).get("driven_by") == "B"
+    if by_flux and args.amplitude is not None:
+        raise CLIError(f"--amplitude scales a loop's field; {args.result} is a model fitted "
+                       "driven by B (--driven-by B), which drives each loop by its B(t): give "
+                       "a file of the B(t) to predict.")
     fitted_column = (problem or {}).get("output") or signal_column(meta.get("output"))
     law = saved.law.features if saved.law is not None else ()
     for name, feature in (("frequency", "log_f"), ("temperature", "T")):
         if vars(args)[name] is not None and feature not in law:
             raise CLIError(f"--{name}: the model in {args.result} does not vary with the "
                            f"{name}; it would have no effect.")
-    loops = select_loops(read_data(args.data, None), args.loop, args.data)
+    loops = select_loops(read_data(args.data, None, drive=not by_flux), args.loop, args.data)
     spec = {"data": args.data, "run_in_periods": 1}
     fitted, expected = _fitted_conditions(args.result, meta, saved.actuator)
+    if by_flux:  # (its amplitude the peak flux density; a model saved before that was
+        # recorded in teslas has no fitted range to compare with)
+        spec = {**spec, "driven_by": "B",
+                "run_in_periods": (problem or {}).get("run_in_periods") or 1}
+        fitted = fitted if meta.get("amplitude_unit") == "T" else None
     overrides = {"frequency": args.frequency, "temperature": args.temperature}
-    rows, curves, columns = [], [], {k: [] for k in ("loop", "H_A_per_m", "predicted",
-                                                    "data", "error")}
+    rows, curves, columns = [], [], {k: [] for k in ("loop", "B_T" if by_flux else
+                                                    "H_A_per_m", "predicted", "data", "error")}
     for lp in loops:
-        out, compared = _observed(spec, lp, fitted_column, args.result)
-        kind = output_kind(SIGNAL_OUTPUTS[out])
-        data = np.asarray(lp.signals[out], dtype=np.float64) if compared else None
-        if args.amplitude is not None:  # (its field scaled: nothing measured to compare)
-            lp, data = scaled_loop(lp, args.amplitude, saved.actuator, args.data), None
-        H = np.asarray(loop_field(lp, saved.actuator, args.data), dtype=np.float64)
+        if by_flux:  # (its B(t) drives the model; H predicted, compared with its H)
+            kind = None
+            data = None if lp.H is None else np.asarray(lp.H, dtype=np.float64)
+            H = np.asarray(flux_of(lp, args.data), dtype=np.float64)  # (the driving B)
+        else:
+            out, compared = _observed(spec, lp, fitted_column, args.result)
+            kind = output_kind(SIGNAL_OUTPUTS[out])
+            data = np.asarray(lp.signals[out], dtype=np.float64) if compared else None
+            if args.amplitude is not None:  # (its field scaled: nothing measured to compare)
+                lp, data = scaled_loop(lp, args.amplitude, saved.actuator, args.data), None
+            H = np.asarray(loop_field(lp, saved.actuator, args.data), dtype=np.float64)
         f = args.frequency if args.frequency is not None else lp.conditions.get("frequency")
         T = args.temperature if args.temperature is not None else \
             lp.conditions.get("temperature")
         model = model_at(args, saved, args.result,
                          frequency=f if "log_f" in law else None,
                          temperature=T if "T" in law else None,
-                         amplitude=float(np.max(np.abs(H))))
-        sim = model.simulate(loop_drive(spec, lp, out, model.actuator))
-        pred = np.asarray(kind.of(sim))[sim.run_in:]
-        row = {"loop": lp.index, "output": kind.name, "samples": int(pred.shape[0]),
+                         amplitude=float(np.max(np.abs(H))),
+                         **({"amplitude_option": "its peak B", "amplitude_unit": "T"}
+                            if by_flux else {}))
+        if by_flux:
+            drive = flux_drive(spec, lp, args.data)
+            pred = np.asarray(model.simulate_flux(drive).H)[drive.run_in:]
+        else:
+            sim = model.simulate(loop_drive(spec, lp, out, model.actuator))
+            pred = np.asarray(kind.of(sim))[sim.run_in:]
+        row = {"loop": lp.index, "output": "field" if by_flux else kind.name,
+               "samples": int(pred.shape[0]),
                "extrapolation": None}
         if data is not None:
             row.update(error_summary(pred, data))
@@ -95,14 +116,16 @@ def run_model(args) -> int:
         rows.append(row)
         curves.append((f"loop {lp.index}", H, pred, data))
         nan = np.full(pred.shape, np.nan)
-        for k, v in (("loop", np.full(pred.shape, lp.index, float)), ("H_A_per_m", H),
+        for k, v in (("loop", np.full(pred.shape, lp.index, float)),
+                     ("B_T" if by_flux else "H_A_per_m", H),
                      ("predicted", pred), ("data", nan if data is None else data),
                      ("error", nan if data is None else pred - data)):
             columns[k].append(v)
     if args.png:
         from jaxhyst.plots import plot_predictions
 
-        plot_predictions(curves, rows[0]["output"], args.png,
+        plot_predictions(flux_curves(curves) if by_flux else curves,
+                         "flux_density" if by_flux else rows[0]["output"], args.png,
                          title=f"predicted by {os.path.basename(args.result)}")
     if args.out:
         write_columns_csv(args.out, {k: np.concatenate(v) for k, v in columns.items()})

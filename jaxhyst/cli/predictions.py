@@ -46,7 +46,10 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     fitted loop nearest to its conditions (`nearest_of`). ``source``: the
     file the loops come from (for the messages; the fitted data file by default). Each
     loop is simulated padded to the longest of ``loops`` — or to ``spec``'s common shape
-    (``pad_to``: a leave-one-out) — so that loops of any length share one program."""
+    (``pad_to``: a leave-one-out) — so that loops of any length share one program. A
+    B-driven fit (``--driven-by B``) predicts each loop's field H (A/m) from its B(t)
+    (columns t and B; its peak B the amplitude of a condition law), compared with the
+    loop's H where the file has it."""
     import jax
     import numpy as np
 
@@ -56,11 +59,15 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     from jaxhyst.model.paths import split_parameters
 
     records = records_of(fitted)
-    kind = output_kind(records.output if records.output != "mixed" else records.outputs[0])
-    actuator = records.actuator
-    name = signal_column(kind.name)
-    drives = [loop_drive(spec, lp, name or "B", actuator, source) for lp in loops]
-    pad_to = spec.get("pad_to") or (common_shape(drives) if len(drives) > 1 else None)
+    if isinstance(records, jh.FluxProblem):  # (each loop's B(t) drives it; H predicted)
+        drives = [flux_drive(spec, lp, source) for lp in loops]
+        actuator, pad_to = None, None
+    else:
+        kind = output_kind(records.output if records.output != "mixed" else
+                           records.outputs[0])
+        actuator, name = records.actuator, signal_column(kind.name)
+        drives = [loop_drive(spec, lp, name or "B", actuator, source) for lp in loops]
+        pad_to = spec.get("pad_to") or (common_shape(drives) if len(drives) > 1 else None)
     nearest = nearest_of(spec)
     if nearest is not None:  # (each loop's nearest fitted loop, once for all)
         try:  # (a condition the fitted loops differ in, which the loops lack: one line)
@@ -80,7 +87,7 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
                 raise CLIError(f"{source or spec['data']}: {err} (a column, or --frequency "
                                "and --temperature)") from None
             tree = jax.tree.map(lambda x: np.asarray(x)[0], tree)
-            _physical_at(tree, lp, at)
+            _physical_at(tree, lp, at, actuator is None)
         elif nearest is not None:  # (the nearest fitted loop's set)
             tree = jax.tree.map(lambda x, i=int(by[k]): np.asarray(x)[i], params)
         elif np.ndim(split_parameters(params)[0].Ms) == 1:
@@ -92,13 +99,41 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
         else:
             tree = params
         p, losses, form = split_parameters(tree)
-        run = drive if pad_to is None else pad_drive(drive, pad_to)
-        sim = jh.simulate(p, actuator, run, records.variant if form is None else form,
-                          records.substeps, losses)
-        predicted = np.asarray(kind.of(sim))[run.run_in:run.run_in + drive.n_observed]
-        data = lp.signals.get(name)
+        form = records.variant if form is None else form
+        if actuator is None:  # (driven by B: the field H)
+            sim = jh.simulate_flux(p, drive, form, records.substeps, losses)
+            predicted, data = np.asarray(sim.H)[drive.run_in:], lp.H
+        else:
+            run = drive if pad_to is None else pad_drive(drive, pad_to)
+            sim = jh.simulate(p, actuator, run, form, records.substeps, losses)
+            predicted = np.asarray(kind.of(sim))[run.run_in:run.run_in + drive.n_observed]
+            data = lp.signals.get(name)
         out.append((predicted, None if data is None else np.asarray(data)))
     return out
+
+
+def flux_curves(curves) -> list:
+    """A B-driven prediction's curves for `jaxhyst.plots.plot_predictions` as a B(H) loop
+    ("flux_density"): from (label, B, predicted H, measured H or None) per loop, the
+    predicted and the measured H each against B."""
+    return [c for name, B, pred, data in curves for c in
+            [(f"{name}: predicted", pred, B, None)] +
+            ([(f"{name}: measured", data, B, None)] if data is not None else [])]
+
+
+def flux_drive(spec, lp, source):
+    """The `FluxDrive` of a loop's B(t) for a B-driven fit's prediction (run in as the fit
+    was)."""
+    import jaxhyst as jh
+
+    from .problems import flux_of
+
+    data = source or spec["data"]
+    try:
+        return jh.flux_from_record(lp.t, flux_of(lp, data),
+                                   run_in_periods=spec.get("run_in_periods") or 1)
+    except ValueError as err:
+        raise CLIError(f"{data}: loop {lp.index}: {err}") from None
 
 
 class BeyondLaw(CLIError):
@@ -111,17 +146,19 @@ class BeyondLaw(CLIError):
         self.reason = reason
 
 
-def _physical_at(tree, loop, at) -> None:
+def _physical_at(tree, loop, at, by_flux: bool = False) -> None:
     """Raise `BeyondLaw` where the parameters ``tree`` a condition law gives at ``loop``'s
-    conditions ``at`` (`jaxhyst.Conditions` of that one loop) are not physical — a
-    parameter, a loss coefficient or the form's own (e.g. the spread beyond [0, 10])."""
+    conditions ``at`` (`jaxhyst.Conditions` of that one loop; ``by_flux``: its amplitude
+    a peak flux density) are not physical — a parameter, a loss coefficient or the form's
+    own (e.g. the spread beyond [0, 10])."""
     from jaxhyst.model.paths import unphysical
 
     reason = unphysical(tree)
     if reason is None:
         return
     shown = [f"{name} {values[0]:.4g} {unit}" for name, values, unit in
-             (("peak field", at.amplitude, "A/m"), ("frequency", at.frequency, "Hz"),
+             (("peak flux density", at.amplitude, "T") if by_flux else
+              ("peak field", at.amplitude, "A/m"), ("frequency", at.frequency, "Hz"),
               ("temperature", at.temperature, "°C")) if values is not None]
     raise BeyondLaw(f"loop {loop.index} ({', '.join(shown)}): the fitted condition law "
                     f"does not reach it — there it gives {reason}; no prediction (predict "
@@ -209,7 +246,8 @@ def expected_error(saved) -> dict | None:
 
 def fitted_range(spec, actuator, strict: bool = True) -> dict | None:
     """{condition: [lowest, highest]} of the fitted loops (amplitude: the peak field in
-    A/m; frequency in Hz and temperature in °C where every loop has them). Where the
+    A/m, the peak flux density in T for a B-driven fit; frequency in Hz and temperature in
+    °C where every loop has them). Where the
     loops' conditions cannot be read (some loops without a frequency …), a `CLIError`,
     or None if not ``strict``. ``actuator`` None: a material's loops (a field column)."""
     from jaxhyst.identify.joint import NO_ACTUATOR
@@ -235,7 +273,8 @@ def outside(spec, loop, actuator, fitted, overrides) -> tuple[str, dict]:
     """('' if ``loop`` lies within the ``fitted`` range (`fitted_range`, 1 % of slack),
     else which condition lies beyond it and how far; {condition: `beyond`} for those)."""
     c = loop_conditions(spec, [loop], actuator, overrides)
-    units = {"amplitude": "A/m", "frequency": "Hz", "temperature": "°C"}
+    units = {"amplitude": "T" if spec.get("driven_by") == "B" else "A/m", "frequency": "Hz",
+             "temperature": "°C"}
     text, far = "", {}
     for name, (lo, hi) in fitted.items():
         values = getattr(c, name, None)

@@ -187,9 +187,10 @@ def parse_vary(text) -> dict:
 
 
 def loop_conditions(spec, loops, actuator, overrides=None):
-    """The `Conditions` of the loops: frequency and temperature from the file's columns
-    (where it has them; ``overrides`` {name: value} replaces them for every loop),
-    amplitude = the loop's peak field (A/m)."""
+    """The `Conditions` of the loops, as a fit's condition law sees them: frequency and
+    temperature from the file's columns (where it has them; ``overrides`` {name: value}
+    replaces them for every loop), amplitude = the loop's peak field (A/m) — its peak
+    flux density (T) where the fit is driven by B (``spec["driven_by"]``)."""
     import numpy as np
 
     import jaxhyst as jh
@@ -206,23 +207,24 @@ def loop_conditions(spec, loops, actuator, overrides=None):
                            f"its {q} (a '{q}' column).")
         return have
 
-    amplitude = [float(np.max(np.abs(loop_field(lp, actuator, spec["data"])))) for lp in loops]
+    if spec.get("driven_by") == "B":
+        amplitude = [float(np.max(np.abs(flux_of(lp, spec["data"])))) for lp in loops]
+    else:
+        amplitude = [float(np.max(np.abs(loop_field(lp, actuator, spec["data"]))))
+                     for lp in loops]
     return jh.Conditions(frequency=column("frequency"), temperature=column("temperature"),
                          amplitude=amplitude)
 
 
-def law_conditions(spec, loops, actuator):
-    """The `Conditions` a fit's condition law sees: `loop_conditions`, with each loop's
-    peak flux density (T) as its amplitude where the fit is driven by B."""
-    import numpy as np
-
-    import jaxhyst as jh
-
-    c = loop_conditions(spec, loops, actuator)
-    if spec.get("driven_by") != "B":
-        return c
-    return jh.Conditions(frequency=c.frequency, temperature=c.temperature,
-                         amplitude=[float(np.max(np.abs(lp.signals["B"]))) for lp in loops])
+def flux_of(lp, data):
+    """The B(t) samples of a loop that drive a B-driven model (T); its t and B columns
+    are needed (a `CLIError` naming the loop and the file otherwise)."""
+    missing = [q for q, v in (("t", lp.t), ("B", lp.signals.get("B"))) if v is None]
+    if missing:
+        raise CLIError(f"loop {lp.index} of {data} has no {', '.join(missing)} column: a "
+                       "B-driven model (--driven-by B) is driven by its B(t) (columns t and "
+                       "B, and H to fit or compare with).")
+    return lp.signals["B"]
 
 
 def model_parameters_from_json(obj: dict, form, what: str):
@@ -381,12 +383,10 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
 
     data = spec["data"]
     for lp in loops:
-        missing = [q for q, v in (("t", lp.t), ("H", lp.H), ("B", lp.signals.get("B")))
-                   if v is None]
-        if missing:
-            raise CLIError(f"--driven-by B: loop {lp.index} of {data} has no "
-                           f"{', '.join(missing)} column; B(t) drives the model and H is "
-                           "fitted (columns t, H and B).")
+        flux_of(lp, data)
+        if lp.H is None:
+            raise CLIError(f"--driven-by B: loop {lp.index} of {data} has no H column; "
+                           "B(t) drives the model and H is fitted (columns t, H and B).")
     lengths = sorted({lp.n_samples for lp in loops})
     if len(lengths) > 1:
         raise CLIError(f"--driven-by B: the loops of {data} have {lengths} samples; a "
@@ -409,7 +409,7 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
     records = jh.FluxProblem(H, drives, jh.per_record_space(bounds, len(loops), losses_box,
                                                             own_form),
                              output="field", variant=form, substeps=substeps)
-    conditions = law_conditions(spec, loops, jh.Actuator(**spec["actuator"]))
+    conditions = loop_conditions(spec, loops, jh.Actuator(**spec["actuator"]))
     law = jh.ConditionModel(vary, int(spec.get("vary_degree", 1)))
     try:
         space = jh.condition_space(bounds, law, fixed=fixed, losses=losses_box,

@@ -200,16 +200,17 @@ def note(label: str, text: str) -> None:
     print(f"[{label}] {text}", file=sys.stderr, flush=True)
 
 
-def read_data(path, columns=None, *, said: list | None = None) -> list:
+def read_data(path, columns=None, *, said: list | None = None, drive: bool = True) -> list:
     """The loops of a data file (`jaxhyst.io.read_loops`), each loop with a frequency and
     no t column given times from it where its samples are a sinusoid's, uniform in time
     (`jaxhyst.loop_times.times_from_frequency`): every command that reads loops reads
     them alike. The line saying so (or why not) is appended to ``said`` where given — for
-    the command to note once its input is checked (an error stays one line)."""
+    the command to note once its input is checked (an error stays one line). ``drive``
+    False: a file without H or I (the B(t) of a B-driven model's loops) is read too."""
     from jaxhyst.io import read_loops
     from jaxhyst.loop_times import times_from_frequency
 
-    loops, text = times_from_frequency(read_loops(path, columns))
+    loops, text = times_from_frequency(read_loops(path, columns, drive=drive))
     if text and said is not None:
         said.append(text)
     return loops
