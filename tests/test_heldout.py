@@ -64,6 +64,42 @@ def test_forms_are_compared_and_the_best_predictor_is_kept(tmp_path, capsys):
     assert "kept: play" in text and json.loads(out.read_text())["problem"]["variant"] == "play"
 
 
+@pytest.mark.extended  # (a B-driven leave-one-out in full)
+def test_loops_driven_by_b_are_left_out_and_predicted_from_their_b(tmp_path, capsys):
+    """``identify --driven-by B --joint --leave-one-out``: each loop's H predicted from
+    its B(t) by a fit of the others (its peak B the amplitude of the extrapolation),
+    beside its own fit and the nearest loop's (shown; kept only for H-driven fits); the
+    result predicts a file of B(t) with the folds' expected error."""
+    form = jh.ClassicJA()
+    lines = ["loop,t,H,B"]
+    for i, Bm in enumerate((0.1, 0.2, 0.3)):
+        sim = jh.simulate_flux(TRUTH, jh.sinusoidal_flux(50.0, Bm, samples_per_period=80),
+                               form)
+        t, H, B = (np.asarray(sim.observed(q)) for q in ("t", "H", "B"))
+        lines += [f"{i},{float(a - t[0])!r},{float(h)!r},{float(b)!r}"
+                  for a, h, b in zip(t, H, B, strict=True)]
+    data, out = tmp_path / "bh.csv", tmp_path / "r.json"
+    data.write_text("\n".join(lines) + "\n")
+    assert main(["identify", str(data), "--driven-by", "B", *COMMON, "--variant",
+                 "classic,energy", "--starts", "2", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    held = json.loads(out.read_text())["leave_one_out"]
+    assert held["kept"] == "classic" and held["baseline_kept_if_best"] is False
+    rows = held["forms"]["classic"]["rows"]
+    assert [r["outside"] for r in rows] == [True, False, True]
+    assert [r["beyond"].get("amplitude") for r in rows] == [pytest.approx(2.0), None,
+                                                            pytest.approx(1.5)]
+    for r in rows:  # (the loops are the fitted form's: every fold predicts its loop)
+        assert r["rms"] < 1e-6 * r["data_scale"] and r["nearest_rms"] >= 0, r
+    assert "nearest (classic alone)" in text
+    alone = tmp_path / "b.csv"
+    alone.write_text("t,B\n" + "".join(f"{a},{b}\n" for a, b in zip(
+        np.arange(80) / 4000.0, 0.25 * np.sin(2 * np.pi * np.arange(80) / 80), strict=True)))
+    assert main(["predict", str(out), str(alone), "--json"]) == 0
+    (row,) = json.loads(capsys.readouterr().out)["loops"]
+    assert row["extrapolation"] == "" and row["expected_relative_error"] < 1e-3
+
+
 @pytest.mark.extended  # (a leave-one-out of long loops)
 def test_long_loops_are_compared_on_every_kth_sample_and_measured_on_all(tmp_path, capsys):
     """Loops of 1 100 samples: every fit of the comparison sees every 3rd sample (at most

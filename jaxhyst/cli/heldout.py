@@ -164,13 +164,21 @@ def _unseen(own, alone, seen, i, j):
     return own[j][0] if j < len(own) and i not in seen[j] else alone[j]
 
 
-def _data_scale(spec, loop) -> float:
-    """max |data| of the signal a fit of ``loop`` fits (its size, for relative errors)."""
-    import numpy as np
-
+def _fitted_data(spec, loop):
+    """The samples a fit of ``loop`` fits: its signal, or its field H where the fit is
+    driven by B."""
     from .spec import loop_signal
 
-    return float(np.max(np.abs(loop.signals[loop_signal(spec, loop, spec.get("output"))])))
+    if spec.get("driven_by") == "B":
+        return loop.H
+    return loop.signals[loop_signal(spec, loop, spec.get("output"))]
+
+
+def _data_scale(spec, loop) -> float:
+    """max |data| of what a fit of ``loop`` fits (its size, for relative errors)."""
+    import numpy as np
+
+    return float(np.max(np.abs(_fitted_data(spec, loop))))
 
 
 def _predict(spec, problem, params, loop):
@@ -182,14 +190,13 @@ def _predict(spec, problem, params, loop):
     from jaxhyst.identify import ConditionWarning
 
     from .predictions import BeyondLaw, error_summary, predict_loops
-    from .spec import loop_signal
 
     with warnings.catch_warnings(record=True) as caught:  # (an extrapolation is part of
         warnings.simplefilter("always", ConditionWarning)  # the row instead)
         try:
             predicted, data = predict_loops(spec, problem, params, [loop])[0]
         except BeyondLaw as err:  # (the fold's law gives no material there: no prediction)
-            data = np.asarray(loop.signals[loop_signal(spec, loop, spec.get("output"))])
+            data = np.asarray(_fitted_data(spec, loop))
             return {"rms": math.inf, "max_abs": math.inf,
                     "data_scale": float(np.max(np.abs(data))), "extrapolated": [],
                     "no_prediction": err.reason, "_curve": (np.full(data.shape, np.nan), data)}
@@ -336,32 +343,17 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             singles.setdefault(same, (alone, list(own), seen))
         if partial:
             break
-    kept, source = choose(table, conditions, comparison=len(forms) > 1)
+    # (the baseline is kept only for H-driven fits: its final fit, each loop's own set,
+    # is not made driven by B — shown, not kept, there)
+    kept, source = choose(table, conditions, comparison=len(forms) > 1 and
+                          spec.get("driven_by") != "B")
     out = {"forms": table, "kept": kept, "partial": partial, "stopped_short": short,
+           "baseline_kept_if_best": spec.get("driven_by") != "B",
            "fitted_every": every, "_curves": curves.get(kept, []),
            "_folds": folds.get(kept, [])}
     if kept == NEAREST:  # (its curves and fits: the source form's single fits)
         out["_curves"], out["_own"] = near_curves[source], owns[source]
     return out
-
-
-def held_out_figure(curves, kept: str, spec, actuator, output: str, path: str) -> None:
-    """Each held-out loop's prediction by the kept form (``curves``: [(loop, predicted,
-    data)] from its folds) against its data, into ``path``."""
-    import numpy as np
-
-    from jaxhyst.plots import plot_predictions
-
-    from .spec import loop_field
-
-    loops = []
-    for lp, predicted, data in curves:
-        H = np.asarray(loop_field(lp, actuator, spec["data"]))[-predicted.shape[0]:]
-        loops.append((f"loop {lp.index} (held out)", H, predicted, data))
-    plot_predictions(loops, output, path, title=(
-        "leave one loop out: each loop predicted by the nearest other loop's fit"
-        if kept == NEAREST else f"leave one loop out: {kept}, each loop predicted from "
-        "the others"))
 
 
 def held_out_text(held: dict) -> str:
@@ -405,6 +397,9 @@ def held_out_text(held: dict) -> str:
                      f"{held['forms'][kept]['score']:.4g}): no form here carries across "
                      "these conditions" + (" (name several forms, or none, to let the "
                                            "comparison keep it)" if len(compared) == 1
+                                           and held.get("baseline_kept_if_best", True) else
+                                           " (driven by B, the baseline is shown, not kept)"
+                                           if not held.get("baseline_kept_if_best", True)
                                            else ""))
     for s in held["stopped_short"]:
         lines.append(f"    STOPPED SHORT: {s}")

@@ -21,7 +21,7 @@ from .candidates import (
 )
 from .fitting import decimated_first, fit_by_options, widen_derived_box
 from .flux_fit import check_flux_options, flux_figure
-from .heldout import held_out_figure, held_out_text, leave_one_out
+from .heldout import held_out_text, leave_one_out
 from .nearest import NEAREST, nearest_fit
 from .options import (
     COUNT,
@@ -202,8 +202,7 @@ def check_options(args) -> dict:
             "run_in_periods": args.run_in_periods, "substeps": args.substeps,
             "variant": None, "cells": args.cells, "losses": loss_names(args.losses),
             "joint": args.joint, "per_loop": per_loop_arg(args.per_loop),
-            "vary": args.vary, "vary_degree": args.vary_degree or 1,
-            "driven_by": args.driven_by}
+            "vary": args.vary, "vary_degree": args.vary_degree or 1, "driven_by": args.driven_by}
     check_flux_options(args)
     if args.driven_by == "B":  # (the B(H) loop the box is derived from)
         spec["output"] = "B"
@@ -307,10 +306,11 @@ def run(args) -> int:
     figures = _identify_figure(args, problem, result, has_t=loops[0].t is not None) \
         if args.png else []
     if args.png and curves and not writes_in_place(args.png):
+        from .predictions import held_out_figure
         held_png = str(Path(args.png).with_name(Path(args.png).stem + "_heldout"
                                                 + Path(args.png).suffix))
         records = records_of(problem)
-        held_out_figure(curves, held["kept"], spec, records.actuator,
+        held_out_figure(curves, held["kept"], spec, getattr(records, "actuator", None),
                         records.output if records.output != "mixed" else records.outputs[0],
                         held_png)
         figures.append(held_png)

@@ -353,3 +353,27 @@ def scaled_loop(lp, amplitude, actuator, source):
     if peak <= 0:
         raise CLIError(f"--amplitude: loop {lp.index} of {source} has no field to scale.")
     return dataclasses.replace(lp, H=H * (amplitude / peak), I=None, signals={})
+
+
+def held_out_figure(curves, kept: str, spec, actuator, output: str, path: str) -> None:
+    """Each held-out loop's prediction by the kept form (``curves``: [(loop, predicted,
+    data)] from its folds) against its data, into ``path``."""
+    import numpy as np
+
+    from jaxhyst.plots import plot_predictions
+
+    from .nearest import NEAREST
+    from .spec import loop_field
+
+    loops = []
+    for lp, predicted, data in curves:
+        x = lp.signals["B"] if spec.get("driven_by") == "B" else \
+            loop_field(lp, actuator, spec["data"])  # (driven by B: B against H)
+        loops.append((f"loop {lp.index} (held out)", np.asarray(x)[-predicted.shape[0]:],
+                      predicted, data))
+    if spec.get("driven_by") == "B":
+        loops, output = flux_curves(loops), "flux_density"
+    plot_predictions(loops, output, path, title=(
+        "leave one loop out: each loop predicted by the nearest other loop's fit"
+        if kept == NEAREST else f"leave one loop out: {kept}, each loop predicted from "
+        "the others"))
