@@ -262,6 +262,19 @@ def test_the_rate_dependent_model_is_identified_from_an_h_driven_loop():
     assert float(model.losses.eddy) == pytest.approx(0.05, rel=1e-6)
 
 
+def _b_driven_file(tmp_path, params, samples: int, substeps: int):
+    """A file ``bh.csv`` of one period of the classic model driven by B = 0.3 T at 50 Hz
+    (columns t, H, B): (its path, t, H, B)."""
+    drive = jh.sinusoidal_flux(50.0, 0.3, samples_per_period=samples)
+    sim = jh.simulate_flux(params, drive, jh.ClassicJA(), substeps=substeps)
+    t, H, B = (np.asarray(sim.observed(q)) for q in ("t", "H", "B"))
+    data = tmp_path / "bh.csv"
+    data.write_text("t [s],H [A/m],B [T]\n" + "".join(
+        f"{float(a - t[0])!r},{float(h)!r},{float(b)!r}\n" for a, h, b in zip(t, H, B,
+                                                                               strict=True)))
+    return data, t, H, B
+
+
 @pytest.mark.extended  # (end to end: a B-driven fit by the command line, saved, reloaded)
 def test_a_b_driven_fit_from_the_command_line_saves_a_model_driven_by_b(tmp_path, capsys):
     """``identify --driven-by B``: a file's B(t) drives the model and H is fitted (the
@@ -274,13 +287,7 @@ def test_a_b_driven_fit_from_the_command_line_saves_a_model_driven_by_b(tmp_path
 
     p = jh.Parameters(Ms=3.8e5, lambda_s=0.0, a=30.0, k=25.0, alpha=3e-5, c=0.4, E=1.0,
                       Kz=1.0, Mz=1.0, Cz=0.0)
-    drive = jh.sinusoidal_flux(50.0, 0.3, samples_per_period=80)
-    sim = jh.simulate_flux(p, drive, jh.ClassicJA(), substeps=4)
-    t, H, B = (np.asarray(sim.observed(q)) for q in ("t", "H", "B"))
-    data = tmp_path / "bh.csv"
-    data.write_text("t [s],H [A/m],B [T]\n" + "".join(
-        f"{float(a - t[0])!r},{float(h)!r},{float(b)!r}\n" for a, h, b in zip(t, H, B,
-                                                                               strict=True)))
+    data, t, H, B = _b_driven_file(tmp_path, p, 80, 4)
     model = tmp_path / "m.eqx"
     assert main(["identify", str(data), "--driven-by", "B", "--variant", "classic",
                  "--substeps", "4", "--starts", "2", "--save-model", str(model),
@@ -318,13 +325,7 @@ def test_a_b_driven_fit_predicts_each_loops_field_from_its_b(tmp_path, capsys):
 
     from jaxhyst.cli import main
 
-    drive = jh.sinusoidal_flux(50.0, 0.3, samples_per_period=60)
-    sim = jh.simulate_flux(SOFT, drive, jh.ClassicJA(), substeps=2)
-    t, H, B = (np.asarray(sim.observed(q)) for q in ("t", "H", "B"))
-    data = tmp_path / "bh.csv"
-    data.write_text("t [s],H [A/m],B [T]\n" + "".join(
-        f"{float(a - t[0])!r},{float(h)!r},{float(b)!r}\n" for a, h, b in zip(t, H, B,
-                                                                               strict=True)))
+    data, t, H, B = _b_driven_file(tmp_path, SOFT, 60, 2)
     result, model = tmp_path / "r.json", tmp_path / "m.eqx"
     assert main(["identify", str(data), "--driven-by", "B", "--variant", "classic",
                  "--starts", "1", "--max-steps", "2", "--intervals", "linear", "--out", str(result),

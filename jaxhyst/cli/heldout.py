@@ -388,7 +388,8 @@ def held_out_text(held: dict) -> str:
                      "relative to each loop's size): no form here carries across these "
                      "conditions better")
     elif kept and len(compared) > 1:
-        lines.append(f"    kept: {kept} (the lowest geometric-mean held-out error "
+        among = "" if held.get("baseline_kept_if_best", True) else "of the forms "
+        lines.append(f"    kept: {kept} (the lowest geometric-mean held-out error {among}"
                      "relative to each loop's size)")
     near = held["forms"].get(kept, {}).get("nearest_score") if kept else None
     if near is not None and near < held["forms"][kept]["score"]:
