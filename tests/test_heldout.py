@@ -65,11 +65,14 @@ def test_forms_are_compared_and_the_best_predictor_is_kept(tmp_path, capsys):
 
 
 @pytest.mark.extended  # (a B-driven leave-one-out in full)
-def test_loops_driven_by_b_are_left_out_and_predicted_from_their_b(tmp_path, capsys):
+def test_loops_driven_by_b_are_left_out_and_predicted_from_their_b(tmp_path, capsys,
+                                                                    monkeypatch):
     """``identify --driven-by B --joint --leave-one-out``: each loop's H predicted from
     its B(t) by a fit of the others (its peak B the amplitude of the extrapolation),
-    beside its own fit and the nearest loop's (shown; kept only for H-driven fits); the
-    result predicts a file of B(t) with the folds' expected error."""
+    beside its own fit and the nearest loop's; the result predicts a file of B(t) with
+    the folds' expected error. Where the nearest loop's fit is kept (forced here: the
+    choice is tested on H-driven loops), each loop keeps its own set and a new B(t) is
+    predicted by the set of the loop nearest in peak B."""
     form = jh.ClassicJA()
     lines = ["loop,t,H,B"]
     for i, Bm in enumerate((0.1, 0.2, 0.3)):
@@ -84,7 +87,7 @@ def test_loops_driven_by_b_are_left_out_and_predicted_from_their_b(tmp_path, cap
                  "classic,energy", "--starts", "2", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     held = json.loads(out.read_text())["leave_one_out"]
-    assert held["kept"] == "classic" and held["baseline_kept_if_best"] is False
+    assert held["kept"] == "classic"
     rows = held["forms"]["classic"]["rows"]
     assert [r["outside"] for r in rows] == [True, False, True]
     assert [r["beyond"].get("amplitude") for r in rows] == [pytest.approx(2.0), None,
@@ -98,6 +101,23 @@ def test_loops_driven_by_b_are_left_out_and_predicted_from_their_b(tmp_path, cap
     assert main(["predict", str(out), str(alone), "--json"]) == 0
     (row,) = json.loads(capsys.readouterr().out)["loops"]
     assert row["extrapolation"] == "" and row["expected_relative_error"] < 1e-3
+    from jaxhyst.cli import heldout, nearest
+
+    monkeypatch.setattr(heldout, "choose", lambda table, c, comparison: (
+        nearest.NEAREST, nearest.choose(table, c, comparison)[1]))
+    model = tmp_path / "m.eqx"
+    assert main(["identify", str(data), "--driven-by", "B", *COMMON, "--variant", "classic",
+                 "--starts", "2", "--out", str(out), "--save-model", str(model)]) == 0
+    capsys.readouterr()
+    assert json.loads(out.read_text())["problem"]["predict_by"] == "nearest"
+    for source in (out, model):  # (0.25 T: nearest in ln B to the 0.3 T loop)
+        assert main(["predict", str(source), str(alone), "--json"]) == 0
+        (row,) = json.loads(capsys.readouterr().out)["loops"]
+        assert row["by_fitted_loop"] == 2 and row["extrapolation"] == ""
+        assert main(["predict", str(source), str(data), "--json"]) == 0
+        rows = json.loads(capsys.readouterr().out)["loops"]
+        assert [r["by_fitted_loop"] for r in rows] == [0, 1, 2]
+        assert all(r["rms"] < 1e-6 * r["data_scale"] for r in rows), rows
 
 
 @pytest.mark.extended  # (a leave-one-out of long loops)

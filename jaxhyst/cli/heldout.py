@@ -343,12 +343,8 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             singles.setdefault(same, (alone, list(own), seen))
         if partial:
             break
-    # (the baseline is kept only for H-driven fits: its final fit, each loop's own set,
-    # is not made driven by B — shown, not kept, there)
-    kept, source = choose(table, conditions, comparison=len(forms) > 1 and
-                          spec.get("driven_by") != "B")
+    kept, source = choose(table, conditions, comparison=len(forms) > 1)
     out = {"forms": table, "kept": kept, "partial": partial, "stopped_short": short,
-           "baseline_kept_if_best": spec.get("driven_by") != "B",
            "fitted_every": every, "_curves": curves.get(kept, []),
            "_folds": folds.get(kept, [])}
     if kept == NEAREST:  # (its curves and fits: the source form's single fits)
@@ -388,8 +384,7 @@ def held_out_text(held: dict) -> str:
                      "relative to each loop's size): no form here carries across these "
                      "conditions better")
     elif kept and len(compared) > 1:
-        among = "" if held.get("baseline_kept_if_best", True) else "of the forms "
-        lines.append(f"    kept: {kept} (the lowest geometric-mean held-out error {among}"
+        lines.append(f"    kept: {kept} (the lowest geometric-mean held-out error "
                      "relative to each loop's size)")
     near = held["forms"].get(kept, {}).get("nearest_score") if kept else None
     if near is not None and near < held["forms"][kept]["score"]:
@@ -398,9 +393,6 @@ def held_out_text(held: dict) -> str:
                      f"{held['forms'][kept]['score']:.4g}): no form here carries across "
                      "these conditions" + (" (name several forms, or none, to let the "
                                            "comparison keep it)" if len(compared) == 1
-                                           and held.get("baseline_kept_if_best", True) else
-                                           " (driven by B, the baseline is shown, not kept)"
-                                           if not held.get("baseline_kept_if_best", True)
                                            else ""))
     for s in held["stopped_short"]:
         lines.append(f"    STOPPED SHORT: {s}")

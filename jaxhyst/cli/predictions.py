@@ -209,7 +209,8 @@ def nearest_of(spec):
                                                               "amplitude")}
     return jh.NearestCondition(jh.Conditions(**{
         name: None if any(v is None for v in values) else values
-        for name, values in columns.items()}), {"log_amplitude": "A/m"})
+        for name, values in columns.items()}),
+        {"log_amplitude": "T" if spec.get("driven_by") == "B" else "A/m"})
 
 
 def beyond(value: float, lo: float, hi: float, name: str) -> float:

@@ -402,9 +402,12 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
     vary = parse_vary(spec.get("vary"))
     losses_box = {n: tuple(v) for n, v in (spec.get("extra_bounds") or {}).items()
                   if n in (spec.get("losses") or [])} or None
-    if not vary:
-        return jh.FluxProblem(H, drives, model_space(spec, bounds, fixed), output="field",
-                              variant=form, substeps=substeps)
+    if not vary:  # (each loop its own set where the nearest-condition model is fitted)
+        per_loop = list(model_space(spec, bounds, fixed).names) \
+            if spec.get("predict_by") == "nearest" else ()
+        return jh.FluxProblem(H, drives, model_space(spec, bounds, fixed, len(loops), per_loop)
+                              if per_loop else model_space(spec, bounds, fixed),
+                              output="field", variant=form, substeps=substeps)
     own_form = form if isinstance(form, jh.AbstractPlayForm) else None
     records = jh.FluxProblem(H, drives, jh.per_record_space(bounds, len(loops), losses_box,
                                                             own_form),
