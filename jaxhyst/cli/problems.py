@@ -374,8 +374,7 @@ def _chosen_loop(spec, loops, ids) -> list:
 
 def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
     """The `FluxProblem` (or its `ConditionProblem`) of the spec's loops: each loop's B(t)
-    (it needs t, B and H columns, every loop the same number of samples) drives the model,
-    its H is the data."""
+    drives the model, its H is the data (columns t, B and H; one length for every loop)."""
     import numpy as np
 
     import jaxhyst as jh
@@ -403,11 +402,10 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
     losses_box = {n: tuple(v) for n, v in (spec.get("extra_bounds") or {}).items()
                   if n in (spec.get("losses") or [])} or None
     if not vary:  # (each loop its own set where the nearest-condition model is fitted)
-        per_loop = list(model_space(spec, bounds, fixed).names) \
-            if spec.get("predict_by") == "nearest" else ()
-        return jh.FluxProblem(H, drives, model_space(spec, bounds, fixed, len(loops), per_loop)
-                              if per_loop else model_space(spec, bounds, fixed),
-                              output="field", variant=form, substeps=substeps)
+        space = model_space(spec, bounds, fixed)
+        if spec.get("predict_by") == "nearest":
+            space = model_space(spec, bounds, fixed, len(loops), list(space.names))
+        return jh.FluxProblem(H, drives, space, output="field", variant=form, substeps=substeps)
     own_form = form if isinstance(form, jh.AbstractPlayForm) else None
     records = jh.FluxProblem(H, drives, jh.per_record_space(bounds, len(loops), losses_box,
                                                             own_form),
