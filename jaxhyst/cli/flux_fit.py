@@ -3,9 +3,8 @@ file's B(t) drives the model (`jaxhyst.FluxProblem`) and the fitted output is it
 H(t), for one loop, several with shared parameters (``--joint``) or with a condition law
 (``--joint --vary``: the amplitude is then each loop's peak flux density, T), and
 compared by leave-one-out (``--joint --leave-one-out``: each held-out loop's H predicted
-from its B(t)). Its
-problem is built by `jaxhyst.cli.problems.flux_problem`; here: its option checks and its
-figure."""
+from its B(t)). Its problem is built by `jaxhyst.cli.problems.flux_problem`; here: its
+option checks and its figure."""
 
 from __future__ import annotations
 
