@@ -72,7 +72,8 @@ def test_loops_driven_by_b_are_left_out_and_predicted_from_their_b(tmp_path, cap
     beside its own fit and the nearest loop's; the result predicts a file of B(t) with
     the folds' expected error. Where the nearest loop's fit is kept (forced here: the
     choice is tested on H-driven loops), each loop keeps its own set and a new B(t) is
-    predicted by the set of the loop nearest in peak B."""
+    predicted by the set of the loop nearest in peak B; ``--per-loop`` frees a parameter
+    per loop."""
     form = jh.ClassicJA()
     lines = ["loop,t,H,B"]
     for i, Bm in enumerate((0.1, 0.2, 0.3)):
@@ -118,6 +119,13 @@ def test_loops_driven_by_b_are_left_out_and_predicted_from_their_b(tmp_path, cap
         rows = json.loads(capsys.readouterr().out)["loops"]
         assert [r["by_fitted_loop"] for r in rows] == [0, 1, 2]
         assert all(r["rms"] < 1e-6 * r["data_scale"] for r in rows), rows
+    monkeypatch.undo()  # (and a parameter free per loop, driven by B: each loop's own)
+    assert main(["identify", str(data), "--driven-by", "B", "--joint", "--per-loop", "k",
+                 "--variant", "classic", "--starts", "2", "--intervals", "linear",
+                 "--progress", "0", "--out", str(out)]) == 0
+    capsys.readouterr()
+    fitted = json.loads(out.read_text())["params"]
+    assert fitted["k"]["value"] == [pytest.approx(30.0, rel=1e-4)] * 3
 
 
 @pytest.mark.extended  # (a leave-one-out of long loops)

@@ -309,7 +309,8 @@ def test_a_b_driven_fit_from_the_command_line_saves_a_model_driven_by_b(tmp_path
     assert out["H_max_A_per_m"] == pytest.approx(float(H.max()), rel=1e-3)
     for argv, message in (
             (["--driven-by", "B", "--output", "M"], "leave it out"),
-            (["--driven-by", "B", "--joint", "--per-loop", "k"], "applies to H-driven fits")):
+            (["--driven-by", "B", "--joint", "--per-loop", "k", "--vary", "a:log_amplitude"],
+             "use one of them")):
         assert main(["identify", str(data), *argv]) == 2
         assert message in capsys.readouterr().err
     data.write_text("H [A/m],B [T]\n1,0.1\n2,0.2\n")

@@ -1,10 +1,10 @@
 """``identify --driven-by B``: a material's B-driven fit from the command line — the
 file's B(t) drives the model (`jaxhyst.FluxProblem`) and the fitted output is its field
-H(t), for one loop, several with shared parameters (``--joint``) or with a condition law
-(``--joint --vary``: the amplitude is then each loop's peak flux density, T), and
-compared by leave-one-out (``--joint --leave-one-out``: each held-out loop's H predicted
-from its B(t)). Its problem is built by `jaxhyst.cli.problems.flux_problem`; here: its
-option checks and its figure."""
+H(t), for one loop, several with shared parameters (``--joint``), with a condition law
+(``--joint --vary``: the amplitude is then each loop's peak flux density, T) or free per
+loop (``--per-loop``), and compared by leave-one-out (``--joint --leave-one-out``: each
+held-out loop's H predicted from its B(t)). Its problem is built by
+`jaxhyst.cli.problems.flux_problem`; here: its option checks and its figure."""
 
 from __future__ import annotations
 
@@ -15,9 +15,6 @@ def check_flux_options(args) -> None:
     """What a B-driven fit does not do, refused in one line before any work."""
     if args.driven_by != "B":
         return
-    if args.per_loop:
-        raise CLIError("--per-loop applies to H-driven fits; a B-driven fit (--driven-by B) "
-                       "shares its parameters or varies them with --vary.")
     if args.output not in (None, "B"):
         raise CLIError(f"--driven-by B fits the field H from B(t); --output {args.output} "
                        "is of an H-driven fit: leave it out.")

@@ -187,10 +187,9 @@ def parse_vary(text) -> dict:
 
 
 def loop_conditions(spec, loops, actuator, overrides=None):
-    """The `Conditions` of the loops, as a fit's condition law sees them: frequency and
-    temperature from the file's columns (where it has them; ``overrides`` {name: value}
-    replaces them for every loop), amplitude = the loop's peak field (A/m) — its peak
-    flux density (T) where the fit is driven by B (``spec["driven_by"]``)."""
+    """The loops' `Conditions` as a fit's law sees them: frequency and temperature from the
+    file's columns (``overrides`` {name: value} replaces them for every loop); amplitude:
+    the loop's peak field (A/m), or peak flux density (T) where driven by B."""
     import numpy as np
 
     import jaxhyst as jh
@@ -299,6 +298,9 @@ def build_problem(spec: dict, loops=None):
     form = form_from_spec(spec)
     fixed = dict(spec.get("fixed") or {})
     substeps = _substeps(spec, form, loops)
+    if spec.get("vary") and spec.get("per_loop"):
+        raise CLIError("--vary and --per-loop both say how parameters differ between "
+                       "loops; use one of them.")
     if spec.get("driven_by") == "B":
         if not spec.get("joint"):
             loops = _chosen_loop(spec, loops, ids)
@@ -311,9 +313,6 @@ def build_problem(spec: dict, loops=None):
         per_loop = spec.get("per_loop") or ()
         if spec.get("predict_by") == "nearest":  # (each loop its own set: the nearest-
             per_loop = list(model_space(spec, bounds, fixed).names)  # condition model)
-        if vary and per_loop:
-            raise CLIError("--vary and --per-loop both say how parameters differ between "
-                           "loops; use one of them.")
         if vary:  # (checked before the records: a missing column is the one message)
             for name in vary:
                 if name in LOSS_NAMES and name not in (spec.get("losses") or []):
@@ -401,10 +400,11 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
     vary = parse_vary(spec.get("vary"))
     losses_box = {n: tuple(v) for n, v in (spec.get("extra_bounds") or {}).items()
                   if n in (spec.get("losses") or [])} or None
-    if not vary:  # (each loop its own set where the nearest-condition model is fitted)
+    if not vary:  # (per loop: --per-loop's, or every parameter for the nearest model)
         space = model_space(spec, bounds, fixed)
-        if spec.get("predict_by") == "nearest":
-            space = model_space(spec, bounds, fixed, len(loops), list(space.names))
+        per_loop = list(space.names) if spec.get("predict_by") == "nearest" else \
+            list(spec.get("per_loop") or ())
+        space = model_space(spec, bounds, fixed, len(loops), per_loop) if per_loop else space
         return jh.FluxProblem(H, drives, space, output="field", variant=form, substeps=substeps)
     own_form = form if isinstance(form, jh.AbstractPlayForm) else None
     records = jh.FluxProblem(H, drives, jh.per_record_space(bounds, len(loops), losses_box,
