@@ -7,6 +7,8 @@ import re
 
 import numpy as np
 
+from .params import MU0
+
 
 class DataError(ValueError):
     """A data or parameter file cannot be used; the message says why and how to fix it."""
@@ -16,9 +18,8 @@ _PER_M = {"A/m": 1.0, "A_per_m": 1.0, "kA/m": 1e3, "kA_per_m": 1e3, "Oe": 1e3 / 
           "kOe": 1e6 / (4 * np.pi)}
 #: Magnetization's units: a field's, and CGS emu/cm³ (1 emu/cm³ = 10³ A/m).
 _MAGNETIZATION = {**_PER_M, "emu/cm3": 1e3, "emu/cm^3": 1e3, "emu_per_cm3": 1e3}
-_MU0 = 4e-7 * np.pi
 #: A polarization J = μ0·M in teslas, read as the magnetization M it is (A/m).
-_POLARIZATION = {"T": 1.0 / _MU0, "mT": 1e-3 / _MU0}
+_POLARIZATION = {"T": 1.0 / MU0, "mT": 1e-3 / MU0}
 _DIMLESS = {"": 1.0, "1": 1.0, "ppm": 1e-6}
 
 #: Quantities a data file may hold: name → (aliases, description, SI unit, {unit: factor}).

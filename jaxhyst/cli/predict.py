@@ -73,6 +73,7 @@ def run(args) -> int:
         predict_loops,
         prediction_line,
         records_of,
+        refuse_amplitude_by_flux,
         scaled_loop,
     )
 
@@ -86,10 +87,8 @@ def run(args) -> int:
     check_outputs(args)
     saved, spec, fitted, params = load_result(args.result)
     by_flux = isinstance(records_of(fitted), jh.FluxProblem)  # (H predicted from B(t))
-    if by_flux and args.amplitude is not None:
-        raise CLIError(f"--amplitude scales a loop's field; {args.result} is a B-driven fit "
-                       "(--driven-by B), whose loops are driven by their B(t): give a file "
-                       "of the B(t) to predict.")
+    if by_flux:
+        refuse_amplitude_by_flux(args.amplitude, args.result)
     source = args.data or spec["data"]
     loops = select_loops(read_data(source, spec.get("columns"), drive=not by_flux), args.loop,
                          source)
@@ -114,11 +113,9 @@ def run(args) -> int:
     for w in caught:
         if issubclass(w.category, ConditionWarning):
             warn(args, str(w.message))
-    rows, columns = [], {"loop": [], "H_A_per_m": [], "predicted": [], "data": [],
-                         "error": []}
-    curves = []
-    if by_flux:  # (the driving B the first column; H predicted, compared with H)
-        columns = {"B_T" if k == "H_A_per_m" else k: v for k, v in columns.items()}
+    x_column = "B_T" if by_flux else "H_A_per_m"  # (driven by B: H predicted, from B)
+    rows, curves = [], []
+    columns = {k: [] for k in ("loop", x_column, "predicted", "data", "error")}
     for lp, (pred, data) in zip(loops, predictions, strict=True):
         H = np.asarray(lp.signals["B"] if by_flux else loop_field(lp, actuator, source))
         row = {"loop": lp.index, "samples": int(pred.shape[0])}
@@ -130,7 +127,7 @@ def run(args) -> int:
         curves.append((f"loop {lp.index}", H[-pred.shape[0]:], pred, data))
         rows.append(row)
         columns["loop"].append(np.full(pred.shape, lp.index, dtype=float))
-        columns["B_T" if by_flux else "H_A_per_m"].append(H[-pred.shape[0]:])
+        columns[x_column].append(H[-pred.shape[0]:])
         columns["predicted"].append(pred)
         nan = np.full(pred.shape, np.nan)
         columns["data"].append(nan if data is None else data)

@@ -39,6 +39,7 @@ def run_model(args) -> int:
         nearest_loop,
         outside,
         prediction_line,
+        refuse_amplitude_by_flux,
         scaled_loop,
     )
     from .problems import flux_of
@@ -51,10 +52,8 @@ def run_model(args) -> int:
     meta = read_header(args.result).get("meta", {})
     problem = meta.get("problem")  # (the spec it was fitted with)
     by_flux = meta.get("output") == "field" or (problem or {}).get("driven_by") == "B"
-    if by_flux and args.amplitude is not None:
-        raise CLIError(f"--amplitude scales a loop's field; {args.result} is a model fitted "
-                       "driven by B (--driven-by B), which drives each loop by its B(t): give "
-                       "a file of the B(t) to predict.")
+    if by_flux:
+        refuse_amplitude_by_flux(args.amplitude, args.result)
     fitted_column = (problem or {}).get("output") or signal_column(meta.get("output"))
     law = saved.law.features if saved.law is not None else ()
     for name, feature in (("frequency", "log_f"), ("temperature", "T")):
@@ -70,8 +69,9 @@ def run_model(args) -> int:
                 "run_in_periods": (problem or {}).get("run_in_periods") or 1}
         fitted = fitted if meta.get("amplitude_unit") == "T" else None
     overrides = {"frequency": args.frequency, "temperature": args.temperature}
-    rows, curves, columns = [], [], {k: [] for k in ("loop", "B_T" if by_flux else
-                                                    "H_A_per_m", "predicted", "data", "error")}
+    x_column = "B_T" if by_flux else "H_A_per_m"  # (driven by B: H predicted, from B)
+    rows, curves = [], []
+    columns = {k: [] for k in ("loop", x_column, "predicted", "data", "error")}
     for lp in loops:
         if by_flux:  # (its B(t) drives the model; H predicted, compared with its H)
             kind = None
@@ -116,8 +116,7 @@ def run_model(args) -> int:
         rows.append(row)
         curves.append((f"loop {lp.index}", H, pred, data))
         nan = np.full(pred.shape, np.nan)
-        for k, v in (("loop", np.full(pred.shape, lp.index, float)),
-                     ("B_T" if by_flux else "H_A_per_m", H),
+        for k, v in (("loop", np.full(pred.shape, lp.index, float)), (x_column, H),
                      ("predicted", pred), ("data", nan if data is None else data),
                      ("error", nan if data is None else pred - data)):
             columns[k].append(v)

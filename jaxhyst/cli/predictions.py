@@ -112,6 +112,15 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     return out
 
 
+def refuse_amplitude_by_flux(amplitude, path: str) -> None:
+    """`predict --amplitude` scales a loop's field: refused, in one line, for the fit or
+    model at ``path`` driven by B (its loops are driven by their B(t))."""
+    if amplitude is not None:
+        raise CLIError(f"--amplitude scales a loop's field; {path} is a B-driven fit "
+                       "(--driven-by B), whose loops are driven by their B(t): give a file "
+                       "of the B(t) to predict.")
+
+
 def flux_curves(curves) -> list:
     """A B-driven prediction's curves for `jaxhyst.plots.plot_predictions` as a B(H) loop
     ("flux_density"): from (label, B, predicted H, measured H or None) per loop, the

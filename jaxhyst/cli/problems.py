@@ -48,7 +48,7 @@ def _flux_rate(loops, out, actuator, source) -> float:
     """The largest |dB/dt| (T/s) of the loops (B observed, or μ0·(H + M))."""
     import numpy as np
 
-    MU0 = 4e-7 * np.pi
+    from jaxhyst.params import MU0
     rates = []
     for lp in loops:
         H, data = loop_field(lp, actuator, source), lp.signals[out]
