@@ -73,11 +73,11 @@ def test_loops_driven_by_b_are_left_out_and_predicted_from_their_b(tmp_path, cap
     the folds' expected error. Where the nearest loop's fit is kept (forced here: the
     choice is tested on H-driven loops), each loop keeps its own set and a new B(t) is
     predicted by the set of the loop nearest in peak B; ``--per-loop`` frees a parameter
-    per loop."""
+    per loop. The loops differ in length (each fit pads them to the longest)."""
     form = jh.ClassicJA()
-    lines = ["loop,t,H,B"]
-    for i, Bm in enumerate((0.1, 0.2, 0.3)):
-        sim = jh.simulate_flux(TRUTH, jh.sinusoidal_flux(50.0, Bm, samples_per_period=80),
+    lines = ["loop,t,H,B"]  # (loops of unequal lengths: padded to one program)
+    for i, (Bm, n) in enumerate(((0.1, 80), (0.2, 64), (0.3, 100))):
+        sim = jh.simulate_flux(TRUTH, jh.sinusoidal_flux(50.0, Bm, samples_per_period=n),
                                form)
         t, H, B = (np.asarray(sim.observed(q)) for q in ("t", "H", "B"))
         lines += [f"{i},{float(a - t[0])!r},{float(h)!r},{float(b)!r}"

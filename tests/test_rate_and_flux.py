@@ -439,3 +439,35 @@ def test_losses_refuse_a_record_given_without_times_in_every_entry_point():
     timed_flux = jh.flux_from_record(phase / 300.0, B)
     assert not stack_flux_drives([timed_flux, flux]).timed
     assert stack_flux_drives([timed_flux, timed_flux]).timed
+
+
+def test_records_of_unequal_length_are_padded_and_fitted_as_each_alone():
+    """A `FluxProblem` of records of different lengths pads them to the longest (B = 0 in
+    front, the last B held): each record's residuals are those of its problem alone, 0 in
+    its padding, and count only its own samples; data of the wrong length name the
+    record; a record that does not start at B = 0 cannot be padded in front."""
+    form, space = jh.ClassicJA(), jh.ParameterSpace(jh.TABLE1_BOUNDS)
+    drives = [jh.sinusoidal_flux(50.0, 0.2, samples_per_period=n) for n in (40, 56)]
+    H = [np.asarray(jh.simulate_flux(SOFT, d, form).observed("H")) for d in drives]
+    both = jh.FluxProblem(H, drives, space, variant=form)
+    alone = [jh.FluxProblem([h], [d], space, variant=form) for h, d in zip(H, drives,
+                                                                           strict=True)]
+    assert both.data.shape == (2, drives[1].n_observed)
+    assert [int(g.count) for g in both.groups] == [d.n_observed for d in drives]
+    off = SOFT.replace(k=1.3 * float(SOFT.k), a=0.8 * float(SOFT.a))
+    for params, exact in ((SOFT, True), (off, False)):
+        together = both.group_residuals(params)
+        for i, problem in enumerate(alone):
+            n = drives[i].n_observed
+            (own,) = problem.group_residuals(params)
+            np.testing.assert_allclose(np.asarray(together[i])[:n], np.asarray(own),
+                                       rtol=1e-9, atol=1e-9 * float(np.max(np.abs(H[i]))))
+            assert not np.any(np.asarray(together[i])[n:])
+            assert (float(np.max(np.abs(own))) < 1e-6 * float(np.max(np.abs(H[i])))) == exact
+    n = drives[1].n_observed
+    with pytest.raises(ValueError, match=rf"record 1: its field data .* shape \({n},\)"):
+        jh.FluxProblem([H[0], H[1][:-3]], drives, space, variant=form)
+    phase = np.linspace(0.0, 2.0 * np.pi, 41)
+    shifted = jh.FluxDrive(phase / 300.0, 0.2 * np.cos(phase))  # (no run-in from B = 0)
+    with pytest.raises(ValueError, match="record 0: its drive must start at B = 0"):
+        jh.FluxProblem([np.ones(41), H[1]], [shifted, drives[1]], space)

@@ -32,8 +32,9 @@ def flux_figure(problem, params, path: str, title: str) -> None:
     H_model = np.asarray(records.predict(per))
     B = np.asarray(records.drive.B)[:, records.drive.run_in:]
     curves = []
-    for i in range(records.n_records):
+    lengths = np.asarray(records.valid).sum(axis=1)  # (each record's observed samples)
+    for i, n in enumerate(lengths):
         which = f"record {i}: " if records.n_records > 1 else ""
-        curves.append((f"{which}measured", np.asarray(records.data)[i], B[i], None))
-        curves.append((f"{which}model", H_model[i], B[i], None))
+        curves.append((f"{which}measured", np.asarray(records.data)[i, :n], B[i, :n], None))
+        curves.append((f"{which}model", H_model[i, :n], B[i, :n], None))
     plot_predictions(curves, "flux_density", path, title=title)

@@ -65,14 +65,15 @@ def _conditions(spec, loops):
 def comparison_shape(spec, loops) -> list | None:
     """[run-in, observed samples] of the file's longest loops: every problem of a
     comparison (each loop alone, each fold) is padded to it, so that one program serves
-    them all however unequal the loops' lengths (None for a B-driven fit)."""
+    them all however unequal the loops' lengths (driven by B: of the loops' B(t))."""
     import jaxhyst as jh
     from jaxhyst.identify.joint import common_shape
 
+    from .predictions import flux_drive
     from .spec import loop_drive, loop_signal
 
     if spec.get("driven_by") == "B":
-        return None
+        return list(common_shape([flux_drive(spec, lp, None) for lp in loops]))
     actuator = jh.Actuator(**spec["actuator"])
     return list(common_shape([loop_drive(spec, lp, loop_signal(spec, lp, spec.get("output")),
                                          actuator) for lp in loops]))

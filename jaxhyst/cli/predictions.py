@@ -60,14 +60,13 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
 
     records = records_of(fitted)
     if isinstance(records, jh.FluxProblem):  # (each loop's B(t) drives it; H predicted)
-        drives = [flux_drive(spec, lp, source) for lp in loops]
-        actuator, pad_to = None, None
+        drives, actuator = [flux_drive(spec, lp, source) for lp in loops], None
     else:
         kind = output_kind(records.output if records.output != "mixed" else
                            records.outputs[0])
         actuator, name = records.actuator, signal_column(kind.name)
         drives = [loop_drive(spec, lp, name or "B", actuator, source) for lp in loops]
-        pad_to = spec.get("pad_to") or (common_shape(drives) if len(drives) > 1 else None)
+    pad_to = spec.get("pad_to") or (common_shape(drives) if len(drives) > 1 else None)
     nearest = nearest_of(spec)
     if nearest is not None:  # (each loop's nearest fitted loop, once for all)
         try:  # (a condition the fitted loops differ in, which the loops lack: one line)
@@ -100,14 +99,14 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
             tree = params
         p, losses, form = split_parameters(tree)
         form = records.variant if form is None else form
+        run = drive if pad_to is None else pad_drive(drive, pad_to)
+        observed = slice(run.run_in, run.run_in + drive.n_observed)
         if actuator is None:  # (driven by B: the field H)
-            sim = jh.simulate_flux(p, drive, form, records.substeps, losses)
-            predicted, data = np.asarray(sim.H)[drive.run_in:], lp.H
+            sim = jh.simulate_flux(p, run, form, records.substeps, losses)
+            predicted, data = np.asarray(sim.H)[observed], lp.H
         else:
-            run = drive if pad_to is None else pad_drive(drive, pad_to)
             sim = jh.simulate(p, actuator, run, form, records.substeps, losses)
-            predicted = np.asarray(kind.of(sim))[run.run_in:run.run_in + drive.n_observed]
-            data = lp.signals.get(name)
+            predicted, data = np.asarray(kind.of(sim))[observed], lp.signals.get(name)
         out.append((predicted, None if data is None else np.asarray(data)))
     return out
 

@@ -373,7 +373,8 @@ def _chosen_loop(spec, loops, ids) -> list:
 
 def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
     """The `FluxProblem` (or its `ConditionProblem`) of the spec's loops: each loop's B(t)
-    drives the model, its H is the data (columns t, B and H; one length for every loop)."""
+    drives the model, its H is the data (columns t, B and H; loops of unequal length padded
+    to the longest, or to the spec's ``pad_to``)."""
     import numpy as np
 
     import jaxhyst as jh
@@ -385,10 +386,6 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
         if lp.H is None:
             raise CLIError(f"--driven-by B: loop {lp.index} of {data} has no H column; "
                            "B(t) drives the model and H is fitted (columns t, H and B).")
-    lengths = sorted({lp.n_samples for lp in loops})
-    if len(lengths) > 1:
-        raise CLIError(f"--driven-by B: the loops of {data} have {lengths} samples; a "
-                       "B-driven joint fit needs one length (resample them).")
     fixed = fix_structural(bounds, fixed)
     run_in = spec.get("run_in_periods") or 1
     try:
@@ -396,7 +393,8 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
                   for lp in loops]
     except ValueError as err:
         raise CLIError(f"--driven-by B: {data}: {err}") from None
-    H = np.stack([np.asarray(lp.H, dtype=np.float64) for lp in loops])
+    H = [np.asarray(lp.H, dtype=np.float64) for lp in loops]
+    pad_to = spec.get("pad_to")  # (a comparison's common shape; else the longest loop)
     vary = parse_vary(spec.get("vary"))
     losses_box = {n: tuple(v) for n, v in (spec.get("extra_bounds") or {}).items()
                   if n in (spec.get("losses") or [])} or None
@@ -405,11 +403,12 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
         per_loop = list(space.names) if spec.get("predict_by") == "nearest" else \
             list(spec.get("per_loop") or ())
         space = model_space(spec, bounds, fixed, len(loops), per_loop) if per_loop else space
-        return jh.FluxProblem(H, drives, space, output="field", variant=form, substeps=substeps)
+        return jh.FluxProblem(H, drives, space, output="field", variant=form, substeps=substeps,
+                              pad_to=pad_to)
     own_form = form if isinstance(form, jh.AbstractPlayForm) else None
     records = jh.FluxProblem(H, drives, jh.per_record_space(bounds, len(loops), losses_box,
                                                             own_form),
-                             output="field", variant=form, substeps=substeps)
+                             output="field", variant=form, substeps=substeps, pad_to=pad_to)
     conditions = loop_conditions(spec, loops, jh.Actuator(**spec["actuator"]))
     law = jh.ConditionModel(vary, int(spec.get("vary_degree", 1)))
     try:

@@ -63,61 +63,63 @@ def fix_structural(bounds: Bounds, fixed: dict | None = None) -> dict:
     return out
 
 
-def common_shape(drives: Sequence[Drive]) -> tuple[int, int]:
-    """(run-in, observed samples) of the longest of ``drives``: what `pad_drives` pads
-    them to."""
+def common_shape(drives) -> tuple[int, int]:
+    """(run-in, observed samples) of the longest of ``drives`` (`Drive`s or
+    `FluxDrive`s): what `pad_drives` pads them to."""
     return max(d.run_in for d in drives), max(d.n_observed for d in drives)
 
 
-def _padded_samples(drive: Drive, run_in: int, n_observed: int):
-    """(t, H) of ``drive`` with H = 0 in front up to ``run_in`` run-in samples (times
-    stepping back by its mean step) and its last value held to ``n_observed`` observed
-    samples; ValueError where it needs front padding and does not start at H = 0."""
-    t, H = np.asarray(drive.t), np.asarray(drive.H)
+def _padded_samples(drive, run_in: int, n_observed: int):
+    """(t, x) of ``drive`` (x: a `Drive`'s H or a `FluxDrive`'s B) with x = 0 in front up
+    to ``run_in`` run-in samples (times stepping back by its mean step) and its last value
+    held to ``n_observed`` observed samples; ValueError where it needs front padding and
+    does not start at 0."""
+    t, name = np.asarray(drive.t), "B" if hasattr(drive, "B") else "H"
+    x = np.asarray(getattr(drive, name))
     dt = float(np.mean(np.diff(t)))
     front, back = run_in - drive.run_in, n_observed - drive.n_observed
-    if front and H[0] != 0.0:
-        raise ValueError("its drive must start at H = 0 (demagnetized) to be padded; build "
-                         "it with drive_from_record or sinusoidal_*.")
+    if front and x[0] != 0.0:
+        raise ValueError(f"its drive must start at {name} = 0 (demagnetized) to be padded; "
+                         "build it with drive_from_record, flux_from_record or "
+                         "sinusoidal_*.")
     t = np.concatenate([t[0] - dt * np.arange(front, 0, -1), t,
                         t[-1] + dt * np.arange(1, back + 1)])
-    return t, np.concatenate([np.zeros(front), H, np.full(back, H[-1])])
+    return t, np.concatenate([np.zeros(front), x, np.full(back, x[-1])])
 
 
-def pad_drive(drive: Drive, pad_to) -> Drive:
-    """``drive`` padded as a joint problem pads its loops, to at least ``pad_to`` =
-    (run-in, observed samples): one compiled simulation then serves drives of several
-    lengths, its observed samples ``[run_in : run_in + drive.n_observed]``. A drive that
-    cannot be padded in front (it does not start at H = 0) is returned as it is."""
+def pad_drive(drive, pad_to):
+    """``drive`` (a `Drive` or a `FluxDrive`) padded as a joint problem pads its loops, to
+    at least ``pad_to`` = (run-in, observed samples): one compiled simulation then serves
+    drives of several lengths, its observed samples ``[run_in : run_in +
+    drive.n_observed]``. A drive that cannot be padded in front (it does not start at 0)
+    is returned as it is."""
     run_in, n_observed = max(drive.run_in, int(pad_to[0])), max(drive.n_observed,
                                                                  int(pad_to[1]))
     try:
-        t, H = _padded_samples(drive, run_in, n_observed)
+        t, x = _padded_samples(drive, run_in, n_observed)
     except ValueError:
         return drive
-    return Drive(t, H, run_in=run_in, uniform=drive.uniform, timed=drive.timed)
+    return type(drive)(t, x, run_in=run_in, uniform=drive.uniform, timed=drive.timed)
 
 
-def pad_drives(drives: Sequence[Drive], pad_to=None):
-    """Stack drives to one batched `Drive` with a common run-in R and length (at least
-    ``pad_to`` = (run-in, observed samples) where given): front padding with H = 0, end
-    padding holding the last value; per-loop observed mask."""
+def pad_drives(drives: Sequence, pad_to=None):
+    """Stack drives (all `Drive`s or all `FluxDrive`s) to one batched drive with a common
+    run-in R and length (at least ``pad_to`` = (run-in, observed samples) where given):
+    front padding with 0, end padding holding the last value; per-loop observed mask."""
     R, n_obs = common_shape(drives)
     if pad_to is not None:
         R, n_obs = max(R, int(pad_to[0])), max(n_obs, int(pad_to[1]))
-    ts, Hs, mask = [], [], np.zeros((len(drives), n_obs), bool)
+    padded, mask = [], np.zeros((len(drives), n_obs), bool)
     for i, d in enumerate(drives):
         try:
-            t, H = _padded_samples(d, R, n_obs)
+            padded.append(_padded_samples(d, R, n_obs))
         except ValueError as err:
             raise ValueError(f"Loop {i}: {err}") from None
-        ts.append(t)
-        Hs.append(H)
         mask[i, : d.n_observed] = True
     # each loop keeps its own time step (t is data); the batch is uniform if every loop is
     uniform, timed = all(d.uniform for d in drives), all(d.timed for d in drives)
-    batched = [Drive(t, H, run_in=R, uniform=uniform, timed=timed)
-               for t, H in zip(ts, Hs, strict=True)]
+    batched = [type(drives[0])(t, x, run_in=R, uniform=uniform, timed=timed)
+               for t, x in padded]
     drive = jax.tree.map(lambda *xs: jnp.stack(xs), *batched)
     return drive, mask
 
