@@ -450,6 +450,51 @@ def test_a_model_that_cannot_explain_its_data_is_named_and_its_intervals_widened
     assert factor > 1.5 and abs(factor - np.sqrt((1 + r1) / (1 - r1))) < 0.05 * factor
 
 
+def test_a_misspecified_fit_on_a_bound_gets_the_profile_interval_widened_not_moved():
+    """y = p + q·t + r·t² with r ≥ 0 on data that want r < 0 and carry a wiggle no
+    parameter draws: r ends on its bound and the report widens the intervals for the
+    structured residuals. The bound-aware interval of q must be the exact profile
+    interval of the widened χ² (here computable: least squares with r ≥ 0) — between
+    its ends at the thresholds 2.71 and 3.84. Widening J alone (not the residuals) moved
+    the profile's unconstrained optimum √inflation times too far: q's lower end came out
+    at 0.70 against the exact 0.31 … 0.47."""
+    import re
+
+    from jaxhyst.analysis import identifiability
+
+    t = np.linspace(0.0, 2.0, 80)
+    y = 1 + 2 * t - 0.5 * t**2 + 0.05 * np.sin(6 * t) + \
+        0.01 * np.random.default_rng(0).standard_normal(80)
+    tj = jnp.asarray(t)
+
+    def residuals(th, d):
+        return {"y": th["p"] + th["q"] * tj + th["r"] * tj**2 - d["y"]}
+
+    space = jh.ParameterSpace.for_tree(lower={"p": -10.0, "q": -10.0, "r": 0.0},
+                                       upper={"p": 10.0, "q": 10.0, "r": 10.0})
+    problem = jh.ResidualProblem(residuals, space, {"y": jnp.asarray(y)})
+    fit = jh.solve(problem, {"p": 0.5, "q": 1.0, "r": 1.0}, solver="lm", report=False)
+    rep = identifiability(problem, fit.params, profile=False)
+    assert rep.at_bound and "r" in rep.at_bound and rep.misspecified
+    inflation = float(re.search(r"widened ×([0-9.]+)", rep.misspecified).group(1)) ** 2
+
+    def chi2(q):  # (the exact profile: p free, r ≥ 0)
+        rest = y - q * t
+        A = np.stack([np.ones_like(t), t**2], axis=1)
+        c = np.linalg.lstsq(A, rest, rcond=None)[0]
+        free = np.sum((A @ c - rest) ** 2) if c[1] >= 0 else np.inf
+        return min(free, np.sum((rest - rest.mean()) ** 2))
+
+    grid = np.linspace(-2.0, 4.0, 6001)
+    profile = np.array([chi2(q) for q in grid])
+    delta = (profile - profile.min()) / (profile.min() / (80 - 3) * inflation)
+    wide, narrow = grid[delta <= 3.84], grid[delta <= 2.71]
+    lo, hi = rep.intervals["q"]
+    assert wide[0] - 2e-3 <= lo <= narrow[0] + 2e-3, (lo, wide[0], narrow[0])
+    assert narrow[-1] - 2e-3 <= hi <= wide[-1] + 2e-3, (hi, narrow[-1], wide[-1])
+    assert lo < float(fit.params["q"]) < hi
+
+
 def test_the_b_driven_model_warns_where_its_estimate_says_its_sampling_is_coarse():
     """A sharp loop (a, k of a few A/m) driven near saturation at 40 samples per period:
     the estimate (twice the substeps) says H is off by more than the documented 1e-4 of

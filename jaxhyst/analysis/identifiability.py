@@ -186,8 +186,10 @@ def identifiability(problem, params, null_tol: float = 1e-8, max_rel_se: float =
     # every free parameter in the analysis (one at a bound is a constraint, not knowledge:
     # holding it fixed would shrink the intervals of everything correlated with it)
     a = analyse(list(names), values, scale, J, e, null_tol)
-    a["intervals"], methods = _bound_aware(names, values, scale, lower, upper, status, J, e,
-                                           a["std_errors"])
+    # (J and e alike: the inflated χ² is χ²/inflation, whose unconstrained optimum, where
+    # a bound is active, is the same point — J alone would move it √inflation times as far)
+    a["intervals"], methods = _bound_aware(names, values, scale, lower, upper, status, J,
+                                           e / np.sqrt(inflation), a["std_errors"])
     group_sigma = {g.name: (float(s), g.sigma is None)
                    for g, s in zip(problem.groups, sigma, strict=True)}
     group_sigma.update(disagree)
