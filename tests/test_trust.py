@@ -455,9 +455,10 @@ def test_a_misspecified_fit_on_a_bound_gets_the_profile_interval_widened_not_mov
     parameter draws: r ends on its bound and the report widens the intervals for the
     structured residuals. The bound-aware interval of q must be the exact profile
     interval of the widened χ² (here computable: least squares with r ≥ 0) — between
-    its ends at the thresholds 2.71 and 3.84. Widening J alone (not the residuals) moved
-    the profile's unconstrained optimum √inflation times too far: q's lower end came out
-    at 0.70 against the exact 0.31 … 0.47."""
+    its ends at the thresholds 2.71 and 3.84 — and so must r's one-sided interval.
+    Widening J alone (not the residuals) moved the profile's unconstrained optimum
+    √inflation times too far: q's lower end came out at 0.70 against the exact
+    0.31 … 0.47."""
     import re
 
     from jaxhyst.analysis import identifiability
@@ -493,6 +494,14 @@ def test_a_misspecified_fit_on_a_bound_gets_the_profile_interval_widened_not_mov
     assert wide[0] - 2e-3 <= lo <= narrow[0] + 2e-3, (lo, wide[0], narrow[0])
     assert narrow[-1] - 2e-3 <= hi <= wide[-1] + 2e-3, (hi, narrow[-1], wide[-1])
     assert lo < float(fit.params["q"]) < hi
+    # r's one-sided interval: from its bound to the exact profile's rise by 2.71 … 3.84
+    X = np.stack([np.ones_like(t), t], axis=1)
+    grid = np.linspace(0.0, 3.0, 3001)
+    profile = np.array([np.sum((X @ np.linalg.lstsq(X, y - r * t**2, rcond=None)[0] -
+                                (y - r * t**2)) ** 2) for r in grid])
+    delta = (profile - profile.min()) / (profile.min() / (80 - 3) * inflation)
+    assert rep.intervals["r"][0] == 0.0
+    assert grid[delta <= 2.71][-1] - 2e-3 <= rep.intervals["r"][1] <= grid[delta <= 3.84][-1]
 
 
 def test_the_b_driven_model_warns_where_its_estimate_says_its_sampling_is_coarse():
