@@ -42,7 +42,7 @@ def run_model(args) -> int:
         refuse_amplitude_by_flux,
         scaled_loop,
     )
-    from .problems import flux_of
+    from .spec import flux_of
 
     check_outputs(args)
     if not args.data:

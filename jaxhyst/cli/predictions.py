@@ -134,7 +134,7 @@ def flux_drive(spec, lp, source):
     was)."""
     import jaxhyst as jh
 
-    from .problems import flux_of
+    from .spec import flux_of
 
     data = source or spec["data"]
     try:

@@ -16,7 +16,7 @@ from jaxhyst.names import (
     VARIANT_CLASSES,
 )
 
-from .spec import CLIError, data_changed, loop_drive, loop_field, loop_signal, read_data
+from .spec import CLIError, data_changed, flux_of, loop_drive, loop_field, loop_signal, read_data
 
 #: Loss coefficients (`jaxhyst.Losses`) and the built-in forms' own parameters: the names
 #: beyond the ten a box, --fix or --vary may give.
@@ -161,6 +161,14 @@ def model_space(spec: dict, bounds, fixed: dict, n_loops=None, per_loop=()):
                                        n_loops=n_loops, per_loop=per_loop)
 
 
+def per_loop_names(spec: dict, bounds, fixed: dict) -> list:
+    """The parameters free per loop: ``--per-loop``'s, or every one where the fit keeps the
+    nearest-condition model (``predict_by`` "nearest": each loop its own set)."""
+    if spec.get("predict_by") == "nearest":
+        return list(model_space(spec, bounds, fixed).names)
+    return list(spec.get("per_loop") or ())
+
+
 def parse_vary(text) -> dict:
     """``--vary 'k:log_f+T,c:log_amplitude'`` → ``{"k": ("log_f", "T"), "c": (…)}``."""
     if not text:
@@ -213,17 +221,6 @@ def loop_conditions(spec, loops, actuator, overrides=None):
                      for lp in loops]
     return jh.Conditions(frequency=column("frequency"), temperature=column("temperature"),
                          amplitude=amplitude)
-
-
-def flux_of(lp, data):
-    """The B(t) samples of a loop that drive a B-driven model (T); its t and B columns
-    are needed (a `CLIError` naming the loop and the file otherwise)."""
-    missing = [q for q, v in (("t", lp.t), ("B", lp.signals.get("B"))) if v is None]
-    if missing:
-        raise CLIError(f"loop {lp.index} of {data} has no {', '.join(missing)} column: a "
-                       "B-driven model (--driven-by B) is driven by its B(t) (columns t and "
-                       "B, and H to fit or compare with).")
-    return lp.signals["B"]
 
 
 def model_parameters_from_json(obj: dict, form, what: str):
@@ -310,9 +307,7 @@ def build_problem(spec: dict, loops=None):
         if output_kind(SIGNAL_OUTPUTS[out]).magnetic_only:
             fixed = fix_structural(bounds, fixed)
         vary = parse_vary(spec.get("vary"))
-        per_loop = spec.get("per_loop") or ()
-        if spec.get("predict_by") == "nearest":  # (each loop its own set: the nearest-
-            per_loop = list(model_space(spec, bounds, fixed).names)  # condition model)
+        per_loop = per_loop_names(spec, bounds, fixed)
         if vary:  # (checked before the records: a missing column is the one message)
             for name in vary:
                 if name in LOSS_NAMES and name not in (spec.get("losses") or []):
@@ -399,10 +394,9 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
     losses_box = {n: tuple(v) for n, v in (spec.get("extra_bounds") or {}).items()
                   if n in (spec.get("losses") or [])} or None
     if not vary:  # (per loop: --per-loop's, or every parameter for the nearest model)
-        space = model_space(spec, bounds, fixed)
-        per_loop = list(space.names) if spec.get("predict_by") == "nearest" else \
-            list(spec.get("per_loop") or ())
-        space = model_space(spec, bounds, fixed, len(loops), per_loop) if per_loop else space
+        per_loop = per_loop_names(spec, bounds, fixed)
+        space = model_space(spec, bounds, fixed, len(loops), per_loop) if per_loop else \
+            model_space(spec, bounds, fixed)
         return jh.FluxProblem(H, drives, space, output="field", variant=form, substeps=substeps,
                               pad_to=pad_to)
     own_form = form if isinstance(form, jh.AbstractPlayForm) else None

@@ -275,6 +275,17 @@ def loop_field(loop, actuator, source):
     return actuator.n * loop.I + actuator.Hb
 
 
+def flux_of(lp, data):
+    """The B(t) samples of a loop that drive a B-driven model (T); its t and B columns
+    are needed (a `CLIError` naming the loop and the file otherwise)."""
+    missing = [q for q, v in (("t", lp.t), ("B", lp.signals.get("B"))) if v is None]
+    if missing:
+        raise CLIError(f"loop {lp.index} of {data} has no {', '.join(missing)} column: a "
+                       "B-driven model (--driven-by B) is driven by its B(t) (columns t and "
+                       "B, and H to fit or compare with).")
+    return lp.signals["B"]
+
+
 def loop_drive(spec, loop, out, actuator, source=None):
     """The drive of a loop (``source``: the file it was read from; the spec's data file
     by default)."""
