@@ -25,10 +25,8 @@ Machine and date are written with the table. Run on a quiet machine.
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -249,9 +247,9 @@ def main():
         rows += python_first_calls()
     if "compiles" in parts:
         rows += compiles()
-    lines = [f"`python benchmarks/bench_latency.py --parts {args.parts}` — "
-             f"{datetime.date.today()}, {platform.machine()}, {os.cpu_count()} cores, "
-             f"{platform.python_version()}", "",
+    from bench_simulate import machine
+
+    lines = [f"`python benchmarks/bench_latency.py --parts {args.parts}` — {machine()}", "",
              "| what | now | issue 45 said | target |", "|---|---|---|---|"]
     for name, now in rows:
         key = name.split(" (")[0] if name.startswith("three-loop") else name
