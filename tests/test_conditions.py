@@ -241,6 +241,7 @@ def test_predict_reproduces_the_fit_and_leave_one_out_reports_each_loop(tmp_path
         np.testing.assert_array_equal(mine, want[i][mask[i]])
         B = got["data"][got["loop"] == i]
         assert rows[i]["rms"] == pytest.approx(np.sqrt(np.mean((mine - B) ** 2)), rel=1e-12)
+        assert rows[i]["unit"] == "T"
 
     # the saved model predicts as the result does: each loop within the fitted
     # conditions, with the error the folds lead one to expect

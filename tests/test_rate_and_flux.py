@@ -342,6 +342,7 @@ def test_a_b_driven_fit_predicts_each_loops_field_from_its_b(tmp_path, capsys):
         assert main(["predict", str(source), str(data), "--out", str(out), "--json"]) == 0
         (row,) = json.loads(capsys.readouterr().out)["loops"]
         assert row["rms"] == pytest.approx(rms, rel=1e-9) and row["extrapolation"] == ""
+        assert row["unit"] == "A/m"  # (the error is of H)
         table = np.genfromtxt(out, delimiter=",", names=True)
         np.testing.assert_allclose(table["B_T"], B)
         np.testing.assert_allclose(table["predicted"], expected, rtol=1e-9, atol=1e-9)

@@ -59,6 +59,7 @@ def run(args) -> int:
     import jaxhyst as jh
     from jaxhyst.drive import MAX_FIELD
     from jaxhyst.identify.conditions import ConditionWarning
+    from jaxhyst.identify.outputs import output_kind
     from jaxhyst.io import write_columns_csv
 
     from .predictions import (
@@ -114,6 +115,9 @@ def run(args) -> int:
         if issubclass(w.category, ConditionWarning):
             warn(args, str(w.message))
     x_column = "B_T" if by_flux else "H_A_per_m"  # (driven by B: H predicted, from B)
+    records = records_of(fitted)
+    unit = "A/m" if by_flux else output_kind(
+        records.output if records.output != "mixed" else records.outputs[0]).unit
     rows, curves = [], []
     columns = {k: [] for k in ("loop", x_column, "predicted", "data", "error")}
     for lp, (pred, data) in zip(loops, predictions, strict=True):
@@ -123,7 +127,7 @@ def run(args) -> int:
             row["not_compared"] = elsewhere[lp.index]
             data = None
         if data is not None:
-            row.update(error_summary(pred, data))
+            row.update(error_summary(pred, data, unit))
         curves.append((f"loop {lp.index}", H[-pred.shape[0]:], pred, data))
         rows.append(row)
         columns["loop"].append(np.full(pred.shape, lp.index, dtype=float))
@@ -145,7 +149,6 @@ def run(args) -> int:
     if args.png:
         from jaxhyst.plots import plot_predictions
 
-        records = records_of(fitted)
         kind = "flux_density" if by_flux else records.output if records.output != "mixed" \
             else records.outputs[0]
         plot_predictions(flux_curves(curves) if by_flux else curves, kind, args.png,

@@ -103,7 +103,7 @@ def run_model(args) -> int:
                "samples": int(pred.shape[0]),
                "extrapolation": None}
         if data is not None:
-            row.update(error_summary(pred, data))
+            row.update(error_summary(pred, data, "A/m" if by_flux else kind.unit))
         elif args.amplitude is not None:
             row["not_compared"] = f"its field scaled to the peak {args.amplitude:g} A/m"
         if fitted is not None:

@@ -25,13 +25,15 @@ def joint_view(problem, params):
     return records, (params if records is problem else problem.per_record(params))
 
 
-def error_summary(predicted, data) -> dict:
-    """{rms, max_abs, data_scale} of predicted − data (the data's unit)."""
+def error_summary(predicted, data, unit: str | None = None) -> dict:
+    """{rms, max_abs, data_scale} of predicted − data (the data's unit, ``unit`` where
+    given: then also in the row)."""
     import numpy as np
 
     e = np.asarray(predicted) - np.asarray(data)
-    return {"rms": float(np.sqrt(np.mean(e**2))), "max_abs": float(np.max(np.abs(e))),
-            "data_scale": float(np.max(np.abs(data)))}
+    row = {"rms": float(np.sqrt(np.mean(e**2))), "max_abs": float(np.max(np.abs(e))),
+           "data_scale": float(np.max(np.abs(data)))}
+    return row if unit is None else {**row, "unit": unit}
 
 
 def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> list:
@@ -320,7 +322,8 @@ def expect(row, far: dict, expected: dict | None) -> None:
 def prediction_line(row) -> str:
     """A prediction's line for the terminal: the loop, its error against the file's data
     (or why there is none) and `where_text`."""
-    err = (f": rms error {row['rms']:.4g} (max {row['max_abs']:.4g}, "
+    unit = f" {row['unit']}" if row.get("unit") not in (None, "1") else ""
+    err = (f": rms error {row['rms']:.4g}{unit} (max {row['max_abs']:.4g}{unit}, "
            f"{100 * row['rms'] / row['data_scale']:.2g} % of max|data|)") if "rms" in row \
         else (f" (not compared with the file's data: {row['not_compared']})"
               if "not_compared" in row else " (no data to compare)")
