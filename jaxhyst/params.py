@@ -245,11 +245,40 @@ def check_parameters(p: Parameters) -> None:
                 raise ValueError(f"Parameter {name} = {shown} {msg}.")
 
 
+def _bound_pairs(d: dict, where: str) -> tuple[dict, dict]:
+    """({name: lower}, {name: upper}) of ``{name: (lower, upper)}``; TypeError (one line,
+    naming the entry) for a value that is not a pair of numbers."""
+    lo, hi = {}, {}
+    for n, v in d.items():
+        try:
+            lo[n], hi[n] = (float(x) for x in v)
+        except (TypeError, ValueError):
+            raise TypeError(f"{where}: the bounds of {n} must be a pair (lower, upper) of "
+                            f"numbers; got {v!r}.") from None
+    return lo, hi
+
+
 class Bounds(eqx.Module):
-    """Box bounds d_r ≤ θ_r ≤ b_r (paper eq 15), as two `Parameters`."""
+    """Box bounds d_r ≤ θ_r ≤ b_r (paper eq 15), as two `Parameters`:
+    ``Bounds(lower, upper)``, or every parameter by name, ``Bounds(Ms=(lower, upper), …,
+    Cz=(lower, upper))`` (as `from_dict`)."""
 
     lower: Parameters
     upper: Parameters
+
+    def __init__(self, lower=None, upper=None, **named):
+        if named:
+            if lower is not None or upper is not None:
+                raise TypeError("Bounds: give lower and upper (two jaxhyst.Parameters) or "
+                                "every parameter by name, Bounds(Ms=(lower, upper), …), "
+                                "not both.")
+            lo, hi = _bound_pairs(named, "Bounds")
+            lower, upper = Parameters.from_dict(lo), Parameters.from_dict(hi)
+        elif lower is None or upper is None:
+            raise TypeError("Bounds needs lower and upper (two jaxhyst.Parameters), or "
+                            "every parameter by name: Bounds(Ms=(lower, upper), …, "
+                            "Cz=(lower, upper)).")
+        self.lower, self.upper = lower, upper
 
     def __check_init__(self):
         for which in ("lower", "upper"):
@@ -276,9 +305,8 @@ class Bounds(eqx.Module):
     @classmethod
     def from_dict(cls, d: dict[str, tuple[float, float]]) -> Bounds:
         """``{name: (lower, upper)}`` for all ten parameters."""
-        lo = Parameters.from_dict({n: d[n][0] for n in d})
-        hi = Parameters.from_dict({n: d[n][1] for n in d})
-        return cls(lo, hi)
+        lo, hi = _bound_pairs(d, "Bounds.from_dict")
+        return cls(Parameters.from_dict(lo), Parameters.from_dict(hi))
 
     def width(self) -> jax.Array:
         return self.upper.to_array() - self.lower.to_array()

@@ -269,6 +269,9 @@ def _api_table(files):
          "give the records' drives as a list"),
         (lambda: jh.Bounds(jh.TABLE1_TRUE, {"a": 1e4}), TypeError,
          "Bounds' upper must be a jaxhyst.Parameters"),
+        (lambda: jh.Bounds(), TypeError, "Bounds needs lower and upper"),
+        (lambda: jh.Bounds(**{**{n: (1.0, 2.0) for n in jh.NAMES}, "Ms": 7e5}), TypeError,
+         "the bounds of Ms must be a pair (lower, upper) of numbers; got 700000.0"),
         (lambda: jh.Model({"a": 7012.0}, jh.ACTUATOR1), TypeError,
          "Model's params must be a jaxhyst.Parameters"),
         (lambda: jh.Losses(eddy=1e12), ValueError, "Losses.eddy must lie in [0, 1e+06]"),
@@ -301,6 +304,17 @@ def _api_table(files):
         (lambda: jh.sinusoidal_current(100.0, 0.77, 1.53, "Actuator1"), TypeError,
          "actuator must be a jaxhyst.Actuator"),
     ]
+
+
+def test_bounds_by_name_are_the_dicts():
+    pairs = {n: (float(lo), float(hi)) for n, lo, hi in zip(
+        jh.NAMES, jh.TABLE1_BOUNDS.lower.to_array(), jh.TABLE1_BOUNDS.upper.to_array(),
+        strict=True)}
+    by_name = jh.Bounds(**pairs)
+    np.testing.assert_array_equal(by_name.lower.to_array(), jh.TABLE1_BOUNDS.lower.to_array())
+    np.testing.assert_array_equal(by_name.upper.to_array(), jh.TABLE1_BOUNDS.upper.to_array())
+    with pytest.raises(TypeError, match="not both"):
+        jh.Bounds(jh.TABLE1_BOUNDS.lower, **pairs)
 
 
 def test_malformed_python_api_inputs(files):
