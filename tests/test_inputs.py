@@ -62,6 +62,8 @@ def _files(d):
         "ref_nan": b"t [s],y [um]\n" + b"".join(f"{1e-4 * i},{10 + i % 3}\n".encode()
                                                  for i in range(20)) + b"2e-3,nan\n",
         "bounds_spread": json.dumps({"spread": [0.1, 2.0]}).encode(),
+        "b_only": b"t [s],B [T]\n" + b"".join(  # (B(t) alone: nothing to fit driven by B)
+            f"{1e-5 * i},{0.3 * np.sin(2 * np.pi * i / 100)}\n".encode() for i in range(101)),
         "utf16": "H,B\n1,2\n3\n".encode("utf-16"),  # read as text: then the ragged row
         "decimal_commas": b"H,B\n1,5,0,25\n2,5,0,5\n",
         "side_by_side": b"H1 [A/m],B1 [T],H2 [A/m],B2 [T]\n1,0.1,2,0.2\n-1,-0.1,-2,-0.2\n",
@@ -205,6 +207,8 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     # issue 46: command-line spelling in the library's messages; report of a model file
     (["simulate", "--samples-per-period", "2"], 2, "--samples-per-period must be"),
     (["report", "{bh_model}"], 2, "without the problem it was fitted to"),
+    (["identify", "{b_only}", "--driven-by", "B"], 2,
+     "has no H column; B(t) drives the model and H is fitted"),
 ]
 
 

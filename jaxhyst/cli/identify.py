@@ -34,7 +34,7 @@ from .options import (
     Parser,
 )
 from .predictions import expected_error, fitted_range, joint_view, model_to_save, records_of
-from .problems import DEFAULT_CELLS, build_problem, resolve_bounds
+from .problems import DEFAULT_CELLS, build_problem, check_flux_loops, resolve_bounds
 from .spec import (
     CLIError,
     actuator_arg,
@@ -238,7 +238,11 @@ def run(args) -> int:
     size = os.path.getsize(spec["data"]) if os.path.isfile(spec["data"]) else 0
     if size > 5e6 and args.progress:  # (a few seconds: say so before)
         note("identify", f"reading {args.data} ({size / 1e6:.0f} MB) …")
-    loops = read_data(spec["data"], spec["columns"], said=(times := []))  # (noted below)
+    by_flux = spec.get("driven_by") == "B"  # (B(t) drives; H is the data)
+    loops = read_data(spec["data"], spec["columns"], said=(times := []),  # (noted below)
+                      drive=not by_flux)
+    if by_flux:
+        check_flux_loops(loops, spec["data"])
     if size > 5e6 and args.progress:
         note("identify", f"read {sum(lp.n_samples for lp in loops)} samples in "
                          f"{len(loops)} loop{'s' if len(loops) > 1 else ''}")

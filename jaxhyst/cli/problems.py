@@ -366,6 +366,19 @@ def _chosen_loop(spec, loops, ids) -> list:
     return [loops[ids.index(spec["loop"])]]
 
 
+def check_flux_loops(loops, data) -> None:
+    """A `CLIError` (one line, naming the loop and the file) unless every loop has the
+    columns a B-driven fit needs: t and B (its drive) and H (its data)."""
+    for lp in loops:
+        flux_of(lp, data)
+        if lp.H is None:
+            raise CLIError(f"--driven-by B: loop {lp.index} of {data} has no H column; "
+                           "B(t) drives the model and H is fitted (columns t, H and B). "
+                           "Records of B(t) with a measured core loss and no H are fitted "
+                           "in Python: jaxhyst.FluxProblem(energies, drives, space, "
+                           "output='cycle_energy').")
+
+
 def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
     """The `FluxProblem` (or its `ConditionProblem`) of the spec's loops: each loop's B(t)
     drives the model, its H is the data (columns t, B and H; loops of unequal length padded
@@ -376,11 +389,7 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
     from jaxhyst.identify.joint import fix_structural
 
     data = spec["data"]
-    for lp in loops:
-        flux_of(lp, data)
-        if lp.H is None:
-            raise CLIError(f"--driven-by B: loop {lp.index} of {data} has no H column; "
-                           "B(t) drives the model and H is fitted (columns t, H and B).")
+    check_flux_loops(loops, data)
     fixed = fix_structural(bounds, fixed)
     run_in = spec.get("run_in_periods") or 1
     try:
