@@ -62,6 +62,10 @@ def _files(d):
         "ref_nan": b"t [s],y [um]\n" + b"".join(f"{1e-4 * i},{10 + i % 3}\n".encode()
                                                  for i in range(20)) + b"2e-3,nan\n",
         "bounds_spread": json.dumps({"spread": [0.1, 2.0]}).encode(),
+        "b_and_h": b"loop,t [s],H [A/m],B [T]\n" + b"".join(  # (two loops, no frequency)
+            f"{j},{1e-5 * i},{30 * s * np.sin(2 * np.pi * i / 100)},"
+            f"{0.1 * s * np.sin(2 * np.pi * i / 100 - 0.3)}\n".encode()
+            for j, s in enumerate((1.0, 2.0)) for i in range(101)),
         "b_only": b"t [s],B [T]\n" + b"".join(  # (B(t) alone: nothing to fit driven by B)
             f"{1e-5 * i},{0.3 * np.sin(2 * np.pi * i / 100)}\n".encode() for i in range(101)),
         "utf16": "H,B\n1,2\n3\n".encode("utf-16"),  # read as text: then the ragged row
@@ -207,6 +211,10 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     # issue 46: command-line spelling in the library's messages; report of a model file
     (["simulate", "--samples-per-period", "2"], 2, "--samples-per-period must be"),
     (["report", "{bh_model}"], 2, "without the problem it was fitted to"),
+    (["identify", "{b_and_h}", "--driven-by", "B", "--joint", "--vary", "k:log_f"], 2,
+     "--vary k:log_f: {b_and_h} has no frequency column"),
+    (["identify", "{b_and_h}", "--driven-by", "B", "--joint", "--variant", "classic",
+      "--vary", "spread:log_amplitude"], 2, "--vary spread: classic has no spread"),
     (["identify", "{b_only}", "--driven-by", "B"], 2,
      "has no H column; B(t) drives the model and H is fitted"),
 ]
@@ -226,7 +234,7 @@ def files(tmp_path_factory):
 def test_malformed_command_line_inputs(files, argv, status, fragment, capsys):
     names = {k: str(v) for k, v in files.items()}
     names["missing"] = str(files["ok"].parent / "missing.json")
-    argv = [a.format(**names) for a in argv]
+    argv, fragment = [a.format(**names) for a in argv], fragment.format(**names)
     assert main(argv) == status, argv
     cap = capsys.readouterr()
     err = cap.err.strip()

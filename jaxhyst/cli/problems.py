@@ -298,6 +298,9 @@ def build_problem(spec: dict, loops=None):
     if spec.get("vary") and spec.get("per_loop"):
         raise CLIError("--vary and --per-loop both say how parameters differ between "
                        "loops; use one of them.")
+    vary = parse_vary(spec.get("vary"))
+    if vary:  # (checked before the records: a missing column is the one message)
+        conditions = _checked_vary(spec, vary, loops, actuator, form)
     if spec.get("driven_by") == "B":
         if not spec.get("joint"):
             loops = _chosen_loop(spec, loops, ids)
@@ -306,26 +309,7 @@ def build_problem(spec: dict, loops=None):
         out = loop_signal(spec, loops[0], spec.get("output"))
         if output_kind(SIGNAL_OUTPUTS[out]).magnetic_only:
             fixed = fix_structural(bounds, fixed)
-        vary = parse_vary(spec.get("vary"))
         per_loop = per_loop_names(spec, bounds, fixed)
-        if vary:  # (checked before the records: a missing column is the one message)
-            for name in vary:
-                if name in LOSS_NAMES and name not in (spec.get("losses") or []):
-                    raise CLIError(f"--vary {name}: a loss coefficient of the rate-dependent "
-                                   f"model; identify it too with --losses {name} (the file "
-                                   "needs times).")
-                if name in OWN_NAMES and name not in own_parameters(form):
-                    raise CLIError(f"--vary {name}: {spec.get('variant') or 'energy'} has no "
-                                   f"{name}; it is a parameter of the forms play (spread) "
-                                   "and preisach (spread, a_rev).")
-            conditions = loop_conditions(spec, loops, actuator)
-            for name, feats in vary.items():
-                for f in feats:
-                    what, unit = CONDITION_FEATURES[f]  # (amplitude: from the field)
-                    if what != "amplitude" and getattr(conditions, what) is None:
-                        raise CLIError(f"--vary {name}:{f}: {spec['data']} has no {what} "
-                                       f"column; add a '{what}' column ({unit}) or drop "
-                                       f"{f} from --vary.")
         extra = {n: tuple(v) for n, v in (spec.get("extra_bounds") or {}).items()}
         losses = {n: extra[n] for n in spec.get("losses") or []} or None
         own_form = form if own_parameters(form) else None
@@ -352,6 +336,32 @@ def build_problem(spec: dict, loops=None):
     return jh.Problem(loop.signals[out], loop_drive(spec, loop, out, actuator), actuator,
                       model_space(spec, bounds, fixed), output=SIGNAL_OUTPUTS[out],
                       variant=form, substeps=substeps)
+
+
+def _checked_vary(spec: dict, vary: dict, loops, actuator, form):
+    """The loops' `Conditions`, once every parameter of ``vary`` can vary as asked: a loss
+    coefficient identified too, a form's own parameter of this form, each condition in
+    the file (a `CLIError` in one line otherwise)."""
+    from jaxhyst.model.paths import own_parameters
+
+    for name in vary:
+        if name in LOSS_NAMES and name not in (spec.get("losses") or []):
+            raise CLIError(f"--vary {name}: a loss coefficient of the rate-dependent "
+                           f"model; identify it too with --losses {name} (the file "
+                           "needs times).")
+        if name in OWN_NAMES and name not in own_parameters(form):
+            raise CLIError(f"--vary {name}: {spec.get('variant') or 'energy'} has no "
+                           f"{name}; it is a parameter of the forms play (spread) "
+                           "and preisach (spread, a_rev).")
+    conditions = loop_conditions(spec, loops, actuator)
+    for name, feats in vary.items():
+        for f in feats:
+            what, unit = CONDITION_FEATURES[f]  # (amplitude: from the loop's peak)
+            if what != "amplitude" and getattr(conditions, what) is None:
+                raise CLIError(f"--vary {name}:{f}: {spec['data']} has no {what} "
+                               f"column; add a '{what}' column ({unit}) or drop "
+                               f"{f} from --vary.")
+    return conditions
 
 
 def _chosen_loop(spec, loops, ids) -> list:
