@@ -386,9 +386,13 @@ def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
     # report reads the model file as it reads the result (the problem rebuilt from its
     # header, the data checked against the SHA-256 it was fitted to)
     assert main(["report", str(tmp_path / "m.eqx"), "--json"]) == 0
-    again = json.loads(capsys.readouterr().out)["identifiability"]
+    printed = json.loads(capsys.readouterr().out)
+    again, suggested = printed["identifiability"], printed["suggest_fixed"]
     assert again["singular_values"] == pytest.approx(
         res["identifiability"]["singular_values"], rel=1e-9)
+    assert main(["report", str(tmp_path / "m.eqx")]) == 0  # (its last line: what to fix)
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.endswith(f"fix {', '.join(suggested)}" if suggested else "nothing to fix")
     f.write_text(f.read_text() + "0.0,0.0\n")
     assert main(["report", str(tmp_path / "m.eqx")]) == 2
     assert "changed since" in capsys.readouterr().err

@@ -139,9 +139,9 @@ def flux_drive(spec, lp, source):
     from .spec import flux_of
 
     data = source or spec["data"]
+    B = flux_of(lp, data)  # (its own line where a column is missing)
     try:
-        return jh.flux_from_record(lp.t, flux_of(lp, data),
-                                   run_in_periods=spec.get("run_in_periods") or 1)
+        return jh.flux_from_record(lp.t, B, run_in_periods=spec.get("run_in_periods") or 1)
     except ValueError as err:
         raise CLIError(f"{data}: loop {lp.index}: {err}") from None
 

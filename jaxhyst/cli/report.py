@@ -48,8 +48,11 @@ def run(args) -> int:
     with awaited(REFITS, refits):
         rep = identifiability(problem, params, max_rel_se=args.max_rel_se)
     summary = {"identifiability": rep.to_dict(), "suggest_fixed": list(rep.suggest_fixed())}
+    fix = rep.suggest_fixed()
     text = [str(rep), f"  to make the rest identifiable and determined to "
-                      f"{100 * rep.max_rel_se:g} %: fix {', '.join(rep.suggest_fixed()) or '—'}"]
+                      f"{100 * rep.max_rel_se:g} %: fix {', '.join(fix)}" if fix else
+            f"  every free parameter is identifiable and determined to "
+            f"{100 * rep.max_rel_se:g} %: nothing to fix"]
     profiles = []
     for name in args.profile or []:
         prof = profile_likelihood(problem, params, name, n=args.profile_points)
