@@ -332,6 +332,18 @@ def test_joint_bh_problem_from_a_multi_loop_file(tmp_path):
 
 
 @pytest.mark.extended  # (exit 3 of a fold: test_heldout)
+def test_the_report_says_what_to_fix_or_that_nothing_needs_it():
+    from types import SimpleNamespace
+
+    from jaxhyst.cli.report import fix_line
+
+    for fix, want in ((["alpha", "c"], "determined to 10 %: fix alpha, c"),
+                      ([], "every free parameter is identifiable and determined to 10 %: "
+                           "nothing to fix")):
+        rep = SimpleNamespace(suggest_fixed=lambda fix=fix: fix, max_rel_se=0.1)
+        assert fix_line(rep).strip().endswith(want) and "—" not in fix_line(rep)
+
+
 def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
     """A fit cut off at its step limit is not a success: the result says
     ``max_steps_reached`` and the command exits 3 (documented in ``--help``)."""
@@ -386,13 +398,16 @@ def test_identify_that_stops_short_says_so_and_exits_3(tmp_path, capsys):
     # report reads the model file as it reads the result (the problem rebuilt from its
     # header, the data checked against the SHA-256 it was fitted to)
     assert main(["report", str(tmp_path / "m.eqx"), "--json"]) == 0
-    printed = json.loads(capsys.readouterr().out)
-    again, suggested = printed["identifiability"], printed["suggest_fixed"]
+    again = json.loads(capsys.readouterr().out)["identifiability"]
     assert again["singular_values"] == pytest.approx(
         res["identifiability"]["singular_values"], rel=1e-9)
-    assert main(["report", str(tmp_path / "m.eqx")]) == 0  # (its last line: what to fix)
-    last = capsys.readouterr().out.strip().splitlines()[-1]
-    assert last.endswith(f"fix {', '.join(suggested)}" if suggested else "nothing to fix")
+    for loose in ((), ("--max-rel-se", "1e6")):  # (its last line: what to fix)
+        assert main(["report", str(tmp_path / "m.eqx"), *loose, "--json"]) == 0
+        suggested = json.loads(capsys.readouterr().out)["suggest_fixed"]
+        assert main(["report", str(tmp_path / "m.eqx"), *loose]) == 0
+        last = capsys.readouterr().out.strip().splitlines()[-1]
+        assert last.endswith(f"fix {', '.join(suggested)}" if suggested else
+                             "nothing to fix"), last
     f.write_text(f.read_text() + "0.0,0.0\n")
     assert main(["report", str(tmp_path / "m.eqx")]) == 2
     assert "changed since" in capsys.readouterr().err

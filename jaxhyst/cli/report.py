@@ -32,6 +32,16 @@ def add_parser(sub) -> None:
     parser.set_defaults(func=run)
 
 
+def fix_line(rep) -> str:
+    """The report's last line: the parameters to fix (`IdentifiabilityReport.suggest_fixed`)
+    so that the rest are identifiable and determined, or that none need fixing."""
+    fix, share = rep.suggest_fixed(), f"{100 * rep.max_rel_se:g} %"
+    if fix:
+        return f"  to make the rest identifiable and determined to {share}: fix " \
+               f"{', '.join(fix)}"
+    return f"  every free parameter is identifiable and determined to {share}: nothing to fix"
+
+
 def run(args) -> int:
     from jaxhyst._background import awaited
     from jaxhyst.analysis import identifiability, profile_likelihood
@@ -48,11 +58,7 @@ def run(args) -> int:
     with awaited(REFITS, refits):
         rep = identifiability(problem, params, max_rel_se=args.max_rel_se)
     summary = {"identifiability": rep.to_dict(), "suggest_fixed": list(rep.suggest_fixed())}
-    fix = rep.suggest_fixed()
-    text = [str(rep), f"  to make the rest identifiable and determined to "
-                      f"{100 * rep.max_rel_se:g} %: fix {', '.join(fix)}" if fix else
-            f"  every free parameter is identifiable and determined to "
-            f"{100 * rep.max_rel_se:g} %: nothing to fix"]
+    text = [str(rep), fix_line(rep)]
     profiles = []
     for name in args.profile or []:
         prof = profile_likelihood(problem, params, name, n=args.profile_points)
