@@ -158,6 +158,8 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
     (["identify", "{ok}", "--method", "lm", "--checkpoint", "{checkpoint_text}"], 2,
      "apply to the hybrid GAs"),
     (["identify", "{ok}", "--seed", "-1"], 2, "--seed"),
+    (["identify", "{ok}", "--method", "GATR1", "--generations", "3"], 2,
+     "--generations 3: a hybrid runs 5 binary-coded generations first"),
     (["identify", "{ok}", "--out", "/proc/r.json"], 2, "cannot write in /proc"),
     (["identify", "{ok}", "--method", "GATR1", "--population", "1"], 2,
      "--population 1: a hybrid's population needs at least 4"),

@@ -128,15 +128,10 @@ def fit_by_options(args, problem, method, start, quiet: bool = False, seeds=()):
     if method in HYBRID:
         settings = {k: v for k, v in (("q1", args.population), ("T3", args.max_steps))
                     if v is not None}
-        if args.generations is not None:  # in all: the binary-coded T1 first
-            from jaxhyst.identify import hybrid_method
+        if args.generations is not None:  # in all: the binary-coded T1 first (checked
+            from jaxhyst.identify import hybrid_method  # by identify.check_options)
 
-            T1 = int(hybrid_method(method).T1)
-            if args.generations <= T1:
-                raise CLIError(f"--generations {args.generations}: a hybrid runs {T1} "
-                               "binary-coded generations first; give more than that (the "
-                               "generations in all).")
-            settings["T2"] = args.generations - T1
+            settings["T2"] = args.generations - int(hybrid_method(method).T1)
         if args.population is not None:
             settings["q2"] = max(4, args.population // 4)
         if args.checkpoint is None and args.resume:

@@ -220,6 +220,14 @@ def check_options(args) -> dict:
         raise CLIError(f"--population {args.population}: a hybrid's population needs at "
                        "least 4 members (its second stage keeps max(4, population/4) and "
                        "two elites); give 4 or more (the paper: 120).")
+    if args.method in HYBRID and args.generations is not None:  # (in all: T1 first)
+        from jaxhyst.identify import hybrid_method
+
+        T1 = int(hybrid_method(args.method).T1)
+        if args.generations <= T1:
+            raise CLIError(f"--generations {args.generations}: a hybrid runs {T1} "
+                           "binary-coded generations first; give more than that (the "
+                           "generations in all).")
     if args.method in HYBRID and args.start:
         raise CLIError("--start applies to the local solvers (e.g. --method lm); a hybrid GA "
                        "searches the whole box.")
