@@ -114,6 +114,28 @@ def _report(args, quiet: bool):
     return "profile" if getattr(args, "intervals", "profile") == "profile" else True
 
 
+def check_hybrid_options(args) -> None:
+    """The hybrid GAs' options (``--population``, ``--generations``, ``--start``), refused
+    in one line with the other option checks (`jaxhyst.cli.identify.check_options`)."""
+    if args.method not in HYBRID:
+        return
+    if args.population is not None and args.population < 4:
+        raise CLIError(f"--population {args.population}: a hybrid's population needs at "
+                       "least 4 members (its second stage keeps max(4, population/4) and "
+                       "two elites); give 4 or more (the paper: 120).")
+    if args.generations is not None:  # (in all: the binary-coded T1 first)
+        from jaxhyst.identify import hybrid_method
+
+        T1 = int(hybrid_method(args.method).T1)
+        if args.generations <= T1:
+            raise CLIError(f"--generations {args.generations}: a hybrid runs {T1} "
+                           "binary-coded generations first; give more than that (the "
+                           "generations in all).")
+    if args.start:
+        raise CLIError("--start applies to the local solvers (e.g. --method lm); a hybrid GA "
+                       "searches the whole box.")
+
+
 def fit_by_options(args, problem, method, start, quiet: bool = False, seeds=()):
     """The fit the options ask for: a hybrid, one local solve, or a multi-start batch —
     whose first starts are ``seeds`` (parameters of earlier fits, projected into the box;

@@ -19,8 +19,8 @@ from .candidates import (
     rate_note,
     spans_frequencies,
 )
-from .fitting import decimated_first, fit_by_options, widen_derived_box
-from .flux_fit import check_flux_options, flux_figure
+from .fitting import check_hybrid_options, decimated_first, fit_by_options, widen_derived_box
+from .flux_fit import check_flux_loops, check_flux_options, flux_figure
 from .heldout import held_out_text, leave_one_out
 from .nearest import NEAREST, nearest_fit
 from .options import (
@@ -34,7 +34,7 @@ from .options import (
     Parser,
 )
 from .predictions import expected_error, fitted_range, joint_view, model_to_save, records_of
-from .problems import DEFAULT_CELLS, build_problem, check_flux_loops, resolve_bounds
+from .problems import DEFAULT_CELLS, build_problem, resolve_bounds
 from .spec import (
     CLIError,
     actuator_arg,
@@ -216,21 +216,7 @@ def check_options(args) -> dict:
     if args.leave_one_out and spec["per_loop"]:
         raise CLIError("--leave-one-out predicts a loop from the others: its parameters must "
                        "be shared or given by --vary, not --per-loop.")
-    if args.method in HYBRID and args.population is not None and args.population < 4:
-        raise CLIError(f"--population {args.population}: a hybrid's population needs at "
-                       "least 4 members (its second stage keeps max(4, population/4) and "
-                       "two elites); give 4 or more (the paper: 120).")
-    if args.method in HYBRID and args.generations is not None:  # (in all: T1 first)
-        from jaxhyst.identify import hybrid_method
-
-        T1 = int(hybrid_method(args.method).T1)
-        if args.generations <= T1:
-            raise CLIError(f"--generations {args.generations}: a hybrid runs {T1} "
-                           "binary-coded generations first; give more than that (the "
-                           "generations in all).")
-    if args.method in HYBRID and args.start:
-        raise CLIError("--start applies to the local solvers (e.g. --method lm); a hybrid GA "
-                       "searches the whole box.")
+    check_hybrid_options(args)
     candidates(args)
     return spec
 

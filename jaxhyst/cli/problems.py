@@ -16,6 +16,7 @@ from jaxhyst.names import (
     VARIANT_CLASSES,
 )
 
+from .flux_fit import check_flux_loops
 from .spec import CLIError, data_changed, flux_of, loop_drive, loop_field, loop_signal, read_data
 
 #: Loss coefficients (`jaxhyst.Losses`) and the built-in forms' own parameters: the names
@@ -374,19 +375,6 @@ def _chosen_loop(spec, loops, ids) -> list:
     if spec["loop"] not in ids:
         raise CLIError(f"--loop {spec['loop']}: {spec['data']} holds loops {ids}.")
     return [loops[ids.index(spec["loop"])]]
-
-
-def check_flux_loops(loops, data) -> None:
-    """A `CLIError` (one line, naming the loop and the file) unless every loop has the
-    columns a B-driven fit needs: t and B (its drive) and H (its data)."""
-    for lp in loops:
-        flux_of(lp, data)
-        if lp.H is None:
-            raise CLIError(f"--driven-by B: loop {lp.index} of {data} has no H column; "
-                           "B(t) drives the model and H is fitted (columns t, H and B). "
-                           "Records of B(t) with a measured core loss and no H are fitted "
-                           "in Python: jaxhyst.FluxProblem(energies, drives, space, "
-                           "output='cycle_energy').")
 
 
 def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
