@@ -213,6 +213,24 @@ def _repeat_lag(H, span) -> int | None:
     return first + int(np.argmin(msd[first:end]))
 
 
+def checked_record(t, x, quantity: str, name: str) -> np.ndarray:
+    """A record's samples ``x`` (named ``name``, a ``quantity`` record) as a float64
+    vector: one dimension, at least 4 samples, finite, and as many as ``t`` (unless None);
+    ValueError (one line) otherwise."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 1 or x.shape[0] < 4:
+        raise ValueError(f"A record needs at least 4 {quantity} samples in one dimension (one "
+                         f"value per sample); got shape {x.shape}.")
+    if not np.all(np.isfinite(x)):
+        bad = np.flatnonzero(~np.isfinite(x))[:5].tolist()
+        raise ValueError(f"The {quantity} record contains NaN or inf at samples {bad}.")
+    if t is not None and np.shape(t) != x.shape:
+        raise ValueError(f"t and {name} of a record differ in length ({np.size(t)} vs "
+                         f"{x.shape[0]})." if np.ndim(t) == 1 else f"t must be one value "
+                         f"per sample of {name}, in one dimension; got shape {np.shape(t)}.")
+    return x
+
+
 def drive_from_record(t: Float[ArrayLike, " T"] | None, H: Float[ArrayLike, " T"], *,
                       run_in_periods: int = 1, ramp_fraction: float = 0.25) -> Drive:
     """A `Drive` whose observed part is a measured record H(t) (A/m; t in s, or ``None``
@@ -227,21 +245,13 @@ def drive_from_record(t: Float[ArrayLike, " T"] | None, H: Float[ArrayLike, " T"
     range of the first), each copy omits the repeated end point; if it is not but
     repeats (1.5 periods from any phase), each copy is its first period (`_repeat_lag`).
     """
-    H = np.asarray(H, dtype=np.float64)
-    if H.ndim != 1 or H.shape[0] < 4:
-        raise ValueError(f"A record needs at least 4 field samples in one dimension (one "
-                         f"value per sample); got shape {H.shape}.")
-    if not np.all(np.isfinite(H)):
-        bad = np.flatnonzero(~np.isfinite(H))[:5].tolist()
-        raise ValueError(f"The field record contains NaN or inf at samples {bad}.")
+    H = checked_record(t, H, "field", "H")
     _check_field_range(H, "The field record", "check its unit (A/m) and the column it "
                        "was read from")
     timed = t is not None
     if not timed:
         t = np.arange(H.shape[0], dtype=np.float64)  # rate-independent: any time scale
     t = np.asarray(t, dtype=np.float64)
-    if t.shape != H.shape:
-        raise ValueError(f"t and H of a record differ in length ({t.shape[0]} vs {H.shape[0]}).")
     steps = np.diff(t)
     if not np.all(np.isfinite(t)) or np.any(steps <= 0):
         i = int(np.flatnonzero(~(steps > 0))[0]) if np.any(~(steps > 0)) else 0

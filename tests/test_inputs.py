@@ -299,7 +299,7 @@ def _api_table(files):
         (lambda: jh.sinusoidal_flux(50.0, float("nan")), ValueError,
          "amplitude must be a finite number (T)"),
         (lambda: jh.flux_from_record(np.arange(10.0), np.r_[np.zeros(9), np.nan]), ValueError,
-         "the flux record B contains NaN or inf at samples [9]"),
+         "The flux-density record contains NaN or inf at samples [9]"),
         (lambda: jh.flux_from_record(np.arange(10.0), np.zeros(9)), ValueError,
          "t and B of a record differ in length"),
         (lambda: jh.Losses(excess="0.5 A"), ValueError, "Losses.excess must lie in"),

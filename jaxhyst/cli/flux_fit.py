@@ -4,11 +4,11 @@ H(t), for one loop, several with shared parameters (``--joint``), with a conditi
 (``--joint --vary``: the amplitude is then each loop's peak flux density, T) or free per
 loop (``--per-loop``), and compared by leave-one-out (``--joint --leave-one-out``: each
 held-out loop's H predicted from its B(t)). Its problem is built by
-`jaxhyst.cli.problems.flux_problem`; here: its checks and its figure."""
+`jaxhyst.cli.problems.flux_problem`; here: its option checks and its figure."""
 
 from __future__ import annotations
 
-from .spec import CLIError, flux_of
+from .spec import CLIError
 
 
 def check_flux_options(args) -> None:
@@ -18,19 +18,6 @@ def check_flux_options(args) -> None:
     if args.output not in (None, "B"):
         raise CLIError(f"--driven-by B fits the field H from B(t); --output {args.output} "
                        "is of an H-driven fit: leave it out.")
-
-
-def check_flux_loops(loops, data) -> None:
-    """A `CLIError` (one line, naming the loop and the file) unless every loop has the
-    columns a B-driven fit needs: t and B (its drive) and H (its data)."""
-    for lp in loops:
-        flux_of(lp, data)
-        if lp.H is None:
-            raise CLIError(f"--driven-by B: loop {lp.index} of {data} has no H column; "
-                           "B(t) drives the model and H is fitted (columns t, H and B). "
-                           "Records of B(t) with a measured core loss and no H are fitted "
-                           "in Python: jaxhyst.FluxProblem(energies, drives, space, "
-                           "output='cycle_energy').")
 
 
 def flux_figure(problem, params, path: str, title: str) -> None:

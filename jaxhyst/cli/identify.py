@@ -20,7 +20,7 @@ from .candidates import (
     spans_frequencies,
 )
 from .fitting import check_hybrid_options, decimated_first, fit_by_options, widen_derived_box
-from .flux_fit import check_flux_loops, check_flux_options, flux_figure
+from .flux_fit import check_flux_options, flux_figure
 from .heldout import held_out_text, leave_one_out
 from .nearest import NEAREST, nearest_fit
 from .options import (
@@ -39,6 +39,7 @@ from .spec import (
     CLIError,
     actuator_arg,
     bounds_arg,
+    check_flux_loops,
     check_outputs,
     file_sha256,
     fixed_arg,

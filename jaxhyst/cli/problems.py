@@ -16,7 +16,6 @@ from jaxhyst.names import (
     VARIANT_CLASSES,
 )
 
-from .flux_fit import check_flux_loops
 from .spec import CLIError, data_changed, flux_of, loop_drive, loop_field, loop_signal, read_data
 
 #: Loss coefficients (`jaxhyst.Losses`) and the built-in forms' own parameters: the names
@@ -340,9 +339,8 @@ def build_problem(spec: dict, loops=None):
 
 
 def _checked_vary(spec: dict, vary: dict, loops, actuator, form):
-    """The loops' `Conditions`, once every parameter of ``vary`` can vary as asked: a loss
-    coefficient identified too, a form's own parameter of this form, each condition in
-    the file (a `CLIError` in one line otherwise)."""
+    """The loops' `Conditions`, once each parameter of ``vary`` can vary as asked (its
+    loss identified too, of this form, its condition in the file): else a `CLIError`."""
     from jaxhyst.model.paths import own_parameters
 
     for name in vary:
@@ -385,6 +383,8 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
 
     import jaxhyst as jh
     from jaxhyst.identify.joint import fix_structural
+
+    from .spec import check_flux_loops
 
     data = spec["data"]
     check_flux_loops(loops, data)

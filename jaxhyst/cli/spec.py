@@ -286,6 +286,19 @@ def flux_of(lp, data):
     return lp.signals["B"]
 
 
+def check_flux_loops(loops, data) -> None:
+    """A `CLIError` (one line, naming the loop and the file) unless every loop has the
+    columns a B-driven fit needs: t and B (its drive) and H (its data)."""
+    for lp in loops:
+        flux_of(lp, data)
+        if lp.H is None:
+            raise CLIError(f"--driven-by B: loop {lp.index} of {data} has no H column; "
+                           "B(t) drives the model and H is fitted (columns t, H and B). "
+                           "Records of B(t) with a measured core loss and no H are fitted "
+                           "in Python: jaxhyst.FluxProblem(energies, drives, space, "
+                           "output='cycle_energy').")
+
+
 def loop_drive(spec, loop, out, actuator, source=None):
     """The drive of a loop (``source``: the file it was read from; the spec's data file
     by default)."""

@@ -354,18 +354,9 @@ def flux_from_record(t, B, *, run_in_periods: int = 1, ramp_fraction: float = 0.
     """A `FluxDrive` whose observed part is a measured record B(t) (T; t in s) spanning
     whole periods, preceded by a ramp from B = 0 and ``run_in_periods`` copies of it
     (`jaxhyst.drive_from_record`)."""
-    from ..drive import drive_from_record
+    from ..drive import checked_record, drive_from_record
 
-    B = np.asarray(B, dtype=np.float64)  # (checked here in its own words: T, not A/m)
-    if B.ndim != 1 or B.shape[0] < 4:
-        raise ValueError(f"a flux record needs at least 4 samples of B in one dimension (one "
-                         f"value per sample); got shape {B.shape}.")
-    if not np.all(np.isfinite(B)):
-        bad = np.flatnonzero(~np.isfinite(B))[:5].tolist()
-        raise ValueError(f"the flux record B contains NaN or inf at samples {bad}.")
-    if t is not None and np.shape(t) != B.shape:
-        raise ValueError(f"t and B of a record differ in length ({np.shape(t)} vs "
-                         f"{B.shape}).")
+    B = checked_record(t, B, "flux-density", "B")  # (in its own words: B, not the field)
     return FluxDrive.of(drive_from_record(t, B, run_in_periods=run_in_periods,
                                           ramp_fraction=ramp_fraction))
 
