@@ -6,7 +6,8 @@ identify-many``).
 glob that expands to several) and any options of ``jaxhyst identify`` as further columns
 (``loop``, ``variant``, ``method``, ``starts``, ``fix``, ``losses`` …; empty cells and
 flags with ``false`` are left out, ``true`` gives a flag), or a TOML file with one
-``[[item]]`` table per item of the same keys, or a list of such dicts. Every item is
+``[[item]]`` table per item of the same keys, a JSON file of a list of such objects, or a
+list of such dicts. Every item is
 checked — its file exists, its options parse — before any work starts; a bad item is one
 line naming it.
 
@@ -73,6 +74,20 @@ def _argv_of(row: dict) -> list[str]:
     return argv
 
 
+def _json_items(path: str) -> list[dict]:
+    """The items of a JSON manifest: a list of objects, or ``{"item": [...]}`` as in TOML."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            rows = json.load(fh)
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise ManifestError(f"manifest {path}: not valid JSON ({err}).") from None
+    rows = rows.get("item", []) if isinstance(rows, dict) else rows
+    if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+        raise ManifestError(f"manifest {path}: a JSON manifest is a list of objects, one an "
+                            'item ({"data": "loops.csv", "joint": true, …}).')
+    return rows
+
+
 def read_manifest(manifest, root: str | None = None) -> list[dict]:
     """The items of a manifest (a CSV or TOML path, or a list of dicts): each a dict
     with ``id``, ``data`` (an absolute path) and ``argv`` (its identify options), every
@@ -93,6 +108,8 @@ def read_manifest(manifest, root: str | None = None) -> list[dict]:
                     rows = tomllib.load(fh).get("item", [])
             except tomllib.TOMLDecodeError as err:
                 raise ManifestError(f"manifest {path}: not valid TOML ({err}).") from None
+        elif path.endswith(".json"):
+            rows = _json_items(path)
         else:
             with open(path, encoding="utf-8", newline="") as fh:
                 rows = list(csv.DictReader(fh))
@@ -100,8 +117,8 @@ def read_manifest(manifest, root: str | None = None) -> list[dict]:
     else:
         rows, where, root = list(manifest), "the manifest", root or os.getcwd()
     if not rows:
-        raise ManifestError(f"{where}: no items (a CSV with a 'data' column, or TOML "
-                            "[[item]] tables).")
+        raise ManifestError(f"{where}: no items (a CSV with a 'data' column, TOML "
+                            "[[item]] tables or a JSON list of objects).")
     from .cli.identify import check_options, identify_parser
 
     parser = identify_parser()

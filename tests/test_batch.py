@@ -91,17 +91,38 @@ def test_a_local_cluster_gives_the_serial_table(tmp_path):
     assert "holds no hysteresis loop" in d["bad"]["error"]
 
 
+def test_a_json_manifest_gives_the_items_of_the_same_csv_and_toml(tmp_path):
+    from jaxhyst.batch import read_manifest
+
+    _loops(tmp_path, 2)
+    files = {"m.csv": "data,variant,starts,joint\nloop0.csv,classic,2,false\nloop1.csv,play,1,\n",
+             "m.toml": '[[item]]\ndata = "loop0.csv"\nvariant = "classic"\nstarts = 2\n'
+                       'joint = false\n[[item]]\ndata = "loop1.csv"\nvariant = "play"\n'
+                       "starts = 1\n",
+             "m.json": '[{"data": "loop0.csv", "variant": "classic", "starts": 2, '
+                       '"joint": false}, {"data": "loop1.csv", "variant": "play", '
+                       '"starts": 1}]'}
+    items = []
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+        items.append(read_manifest(str(tmp_path / name)))
+    assert items[0] == items[1] == items[2] and len(items[0]) == 2
+
+
 @pytest.mark.parametrize("content, message", [
     ("data,variant\nmissing.csv,classic\n", "item 1: data 'missing.csv': no such file"),
     ("data,variant\nloop0.csv,classic\nloop1.csv,bogus\n", "item 2"),
     ("data,frobnicate\nloop0.csv,3\n", "unrecognized arguments: --frobnicate"),
     ("data,out\nloop0.csv,x.json\n", "--out is set by the batch"),
     ("variant\nclassic\n", "no data file"),
+    ("not json", "not valid JSON"),
+    ('["loop0.csv"]', "a JSON manifest is a list of objects"),
+    ('[{"data": "loop0.csv", "variant": "bogus"}]', "item 1"),
 ])
 def test_bad_manifests_are_refused_in_one_line_before_any_work(tmp_path, capsys, content,
                                                                message):
     _loops(tmp_path, 2)
-    manifest = tmp_path / "m.csv"
+    manifest = tmp_path / ("m.json" if content.startswith(("[", "{", "not")) else "m.csv")
     manifest.write_text(content)
     assert main(["identify-many", str(manifest), "--out", str(tmp_path / "o"),
                  "--scheduler", "serial"]) == 2

@@ -12,13 +12,14 @@ def add_parser(sub) -> None:
     parser = sub.add_parser(
         "identify-many", help="many identifications from a manifest (Dask or serial)",
         description="Run 'jaxhyst identify' on every item of a manifest — a CSV with a "
-        "'data' column (a file or a glob) and identify's options as further columns, or a "
-        "TOML file of [[item]] tables — on a local Dask cluster (one process per core; "
+        "'data' column (a file or a glob) and identify's options as further columns, a "
+        "TOML file of [[item]] tables or a JSON list of objects (.json) — on a local Dask "
+        "cluster (one process per core; "
         "pip install -e '.[cluster]'), a cluster (--scheduler ADDRESS) or serially "
         "(--scheduler serial, or without Dask). Writes OUT/results.csv (one row per item, "
         "rewritten after each; a second run skips the items in it) and each item's "
         "result and model under OUT/items/. Exit 3 if an item failed or stopped short.")
-    parser.add_argument("manifest", help="CSV or TOML manifest")
+    parser.add_argument("manifest", help="CSV, TOML or JSON manifest")
     parser.add_argument("--out", required=True, help="output folder (results.csv, items/)")
     parser.add_argument("--scheduler", help="a Dask scheduler's address (tcp://HOST:8786), "
                         "'local' (default with Dask) or 'serial'")
