@@ -272,8 +272,10 @@ def read_header(path: str | os.PathLike) -> dict:
     except (UnicodeDecodeError, json.JSONDecodeError):
         header = None
     if not isinstance(header, dict) or header.get("format") != FORMAT:
+        hint = ("; a result of 'jaxhyst identify --out' is not one: write the model with "
+                "identify --save-model FILE.eqx") if path.lower().endswith(".json") else ""
         raise ModelFileError(f"{path} is not a jaxhyst model file (written by "
-                             "jaxhyst.save_model).")
+                             f"jaxhyst.save_model){hint}.")
     if header.get("version") != VERSION:
         raise ModelFileError(f"{path} is a model file of version {header.get('version')}; "
                              f"this jaxhyst reads version {VERSION}.")

@@ -77,6 +77,8 @@ def _files(d):
         files[name] = f
     (d / "adir").mkdir()
     files["dir"] = d / "adir"
+    files["fit_result"] = d / "fit.json"  # (a result of identify, not a model)
+    files["fit_result"].write_text(json.dumps({"params": {"Ms": {"value": 7e5}}}))
     return files
 
 
@@ -217,6 +219,9 @@ CLI_TABLE = [  # (argv with {name} for the files, exit status, message fragment)
      "--vary k:log_f: {b_and_h} has no frequency column"),
     (["identify", "{b_and_h}", "--driven-by", "B", "--joint", "--variant", "classic",
       "--vary", "spread:log_amplitude"], 2, "--vary spread: classic has no spread"),
+    (["compensate", "--current-limit", "2.5", "--model", "{fit_result}"], 2,
+     "a result of 'jaxhyst identify --out' is not one: write the model with identify "
+     "--save-model"),
     (["identify", "{b_only}", "--driven-by", "B"], 2,
      "has no H column; B(t) drives the model and H is fitted"),
 ]
