@@ -72,15 +72,19 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> None:
     target = os.path.realpath(path)  # a symbolic link: replace its target, keep the link
     try:
         mode = stat.S_IMODE(os.stat(target).st_mode)
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):  # (a new file: said below if it cannot be)
         with _UMASK_READ:  # (read by setting it: one writer thread at a time, or
             umask = os.umask(0)  # two would leave the process's umask at 0)
             os.umask(umask)
         mode = 0o666 & ~umask
     directory = os.path.dirname(target)
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(target)}.", suffix=".tmp",
-                               dir=directory)
+    try:
+        os.makedirs(directory, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(target)}.", suffix=".tmp",
+                                   dir=directory)
+    except OSError as err:  # (the file asked for, not the temporary one, in one line)
+        raise OSError(err.errno, f"cannot write {path} ({err.strerror}); choose a "
+                                 "writable folder") from None
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)

@@ -324,6 +324,8 @@ def _api_table(files):
         (lambda: jh.loop_problem(H, B, substeps=0), ValueError,
          "substeps must be an integer >= 1; got 0"),
         (lambda: jh.split_records(3, [0, 1, 2]), ValueError, "leave at least one to fit"),
+        (lambda: jh.save_model(files["ok"] / "m.eqx", jh.Model(jh.TABLE1_TRUE, jh.ACTUATOR1)),
+         OSError, f"cannot write {files['ok'] / 'm.eqx'} ("),
         (lambda: jh.sinusoidal_current(100.0, 0.77, 1.53, "Actuator1"), TypeError,
          "actuator must be a jaxhyst.Actuator"),
     ]
