@@ -87,7 +87,11 @@ def run(args) -> int:
         return run_model(args)
     check_outputs(args)
     saved, spec, fitted, params = load_result(args.result)
-    by_flux = isinstance(records_of(fitted), jh.FluxProblem)  # (H predicted from B(t))
+    records = records_of(fitted)
+    by_flux = isinstance(records, jh.FluxProblem)  # (H predicted from B(t))
+    # (what is plotted and compared: B-driven, the field; else the fitted signal's kind)
+    kind = "flux_density" if by_flux else records.output if records.output != "mixed" \
+        else records.outputs[0]
     if by_flux:
         refuse_amplitude_by_flux(args.amplitude, args.result)
     source = args.data or spec["data"]
@@ -104,7 +108,7 @@ def run(args) -> int:
                  "(identify --vary); only the loop's field changes." if name == "amplitude"
                  else f"--{name}: the fitted model does not vary with the {name} "
                  "(identify --vary); it has no effect on the prediction.")
-    actuator = getattr(records_of(fitted), "actuator", None)  # (None: driven by B)
+    actuator = getattr(records, "actuator", None)  # (None: driven by B)
     elsewhere = _elsewhere(loops, overrides, args.amplitude)
     if args.amplitude is not None:
         loops = [scaled_loop(lp, args.amplitude, actuator, source) for lp in loops]
@@ -115,9 +119,7 @@ def run(args) -> int:
         if issubclass(w.category, ConditionWarning):
             warn(args, str(w.message))
     x_column = "B_T" if by_flux else "H_A_per_m"  # (driven by B: H predicted, from B)
-    records = records_of(fitted)
-    unit = "A/m" if by_flux else output_kind(
-        records.output if records.output != "mixed" else records.outputs[0]).unit
+    unit = "A/m" if by_flux else output_kind(kind).unit
     rows, curves = [], []
     columns = {k: [] for k in ("loop", x_column, "predicted", "data", "error")}
     for lp, (pred, data) in zip(loops, predictions, strict=True):
@@ -149,8 +151,6 @@ def run(args) -> int:
     if args.png:
         from jaxhyst.plots import plot_predictions
 
-        kind = "flux_density" if by_flux else records.output if records.output != "mixed" \
-            else records.outputs[0]
         plot_predictions(flux_curves(curves) if by_flux else curves, kind, args.png,
                          title=f"predicted by {os.path.basename(args.result)}")
     if args.out:
