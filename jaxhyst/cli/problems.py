@@ -304,7 +304,8 @@ def build_problem(spec: dict, loops=None):
     if spec.get("driven_by") == "B":
         if not spec.get("joint"):
             loops = _chosen_loop(spec, loops, ids)
-        return flux_problem(spec, loops, bounds, fixed, form, substeps)
+        return flux_problem(spec, loops, bounds, fixed, form, substeps,
+                            conditions if vary else None)
     if spec.get("joint"):
         out = loop_signal(spec, loops[0], spec.get("output"))
         if output_kind(SIGNAL_OUTPUTS[out]).magnetic_only:
@@ -375,10 +376,10 @@ def _chosen_loop(spec, loops, ids) -> list:
     return [loops[ids.index(spec["loop"])]]
 
 
-def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
-    """The `FluxProblem` (or its `ConditionProblem`) of the spec's loops: each loop's B(t)
-    drives the model, its H is the data (columns t, B and H; loops of unequal length padded
-    to the longest, or to the spec's ``pad_to``)."""
+def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int, conditions):
+    """The `FluxProblem` (with ``--vary``: its `ConditionProblem` on the checked loops'
+    ``conditions``) of the spec's loops: each loop's B(t) drives the model, its H is the
+    data (columns t, B, H; unequal lengths padded to the longest, or the spec's ``pad_to``)."""
     import numpy as np
 
     import jaxhyst as jh
@@ -410,7 +411,6 @@ def flux_problem(spec: dict, loops, bounds, fixed: dict, form, substeps: int):
     records = jh.FluxProblem(H, drives, jh.per_record_space(bounds, len(loops), losses_box,
                                                             own_form),
                              output="field", variant=form, substeps=substeps, pad_to=pad_to)
-    conditions = loop_conditions(spec, loops, jh.Actuator(**spec["actuator"]))
     law = jh.ConditionModel(vary, int(spec.get("vary_degree", 1)))
     try:
         space = jh.condition_space(bounds, law, fixed=fixed, losses=losses_box,
