@@ -56,6 +56,7 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     import numpy as np
 
     import jaxhyst as jh
+    from jaxhyst.actuator import MAGNETIZATION_ONLY
     from jaxhyst.identify.joint import common_shape, pad_drive
     from jaxhyst.identify.outputs import output_kind
     from jaxhyst.model.paths import split_parameters
@@ -68,6 +69,8 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
                            records.outputs[0])
         actuator, name = records.actuator, signal_column(kind.name)
         drives = [loop_drive(spec, lp, name or "B", actuator, source) for lp in loops]
+        if kind.magnetic_only:  # (a material: simulate checks its M, not a placeholder y)
+            actuator = jh.Actuator(**{**actuator.to_dict(), "name": MAGNETIZATION_ONLY})
     pad_to = spec.get("pad_to") or (common_shape(drives) if len(drives) > 1 else None)
     nearest = nearest_of(spec)
     if nearest is not None:  # (each loop's nearest fitted loop, once for all)
