@@ -185,9 +185,12 @@ def read_loops(path, columns: list[str] | str | None = None, *,
             except ValueError:
                 v = float("nan")
             if not np.isfinite(v):
+                fix = ("write the number itself (a NumPy repr: float(x), not repr of x)"
+                       if re.fullmatch(r"(np|numpy)\.\w+\(.*\)", cell) else
+                       "remove or repair that row")
                 raise DataError(f"{path.name} line {lineno}, column {columns[c]!r}: value "
                                 f"{cell!r} is not a finite number (NaN, inf, empty or text); "
-                                "remove or repair that row.")
+                                f"{fix}.")
             table[r, c] = v
     data = {q: table[:, j] * f for j, (q, f) in zip(kept, parsed, strict=True)}
     ids = data.pop("loop", np.zeros(len(body)))

@@ -250,6 +250,9 @@ MALFORMED = {
     "header": ("".join(f"{t},{h},{y}\n" for _, t, h, y in _loop_rows()), "no header line"),
     "text": ("t,H,y\n" + "".join(f"{t},{'abc' if i == 2 else h},{y}\n" for i, (_, t, h, y) in
                                  enumerate(_loop_rows())), "'abc' is not a finite number"),
+    # (a NumPy scalar's repr written as a cell: shown as the file holds it, and why)
+    "repr": ("t,H,y\n" + "".join(f"{t},{f'np.float64({h})' if i == 2 else h},{y}\n" for i, (
+        _, t, h, y) in enumerate(_loop_rows())), "value 'np.float64("),
 }
 
 

@@ -224,13 +224,14 @@ def warn(args, text: str) -> None:
 def cli_wording(text: str, args=None) -> str:
     """``text`` (a library's error or warning) in command-line spelling, on one line:
     NumPy/JAX reprs as plain numbers (``np.float64(2.5)``, ``array(inf)`` → ``2.5``,
-    ``inf``) and the Python name of each of the command's options (``samples_per_period``)
-    as the option (``--samples-per-period``)."""
+    ``inf``; not where quoted, as a file's cell is) and the Python name of each of the
+    command's options (``samples_per_period``) as the option (``--samples-per-period``)."""
     import re
 
     text = " ".join(str(text).split())
-    text = re.sub(r"\bnp\.(?:float|int)\d+\(([^()]*)\)", r"\1", text)
-    text = re.sub(r"\b[Aa]rray\(([^(),]*)(?:, dtype=\w+)?\)", r"\1", text)
+    # (not in quotes: a quoted value is what a file holds, and is shown as it is)
+    text = re.sub(r"(?<!')\bnp\.(?:float|int)\d+\(([^()]*)\)", r"\1", text)
+    text = re.sub(r"(?<!')\b[Aa]rray\(([^(),]*)(?:, dtype=\w+)?\)", r"\1", text)
     for dest in sorted(vars(args) if args is not None else (), key=len, reverse=True):
         if "_" in dest and not dest.startswith("_"):
             pattern = rf"(?<![-\w./\\]){dest}(?![\w/\\]|\.\w)"
