@@ -100,13 +100,14 @@ def _fit(args, spec, given, loops, method, seeds=()):
     return result, problem, spec
 
 
-def _own_best(args, own, loops, method):
+def _own_best(args, own, loops, method, label: str):
     """Each loop's own fit as its best fit: where another loop's own fit predicts the loop
     better than the loop's own (its search stopped in a higher valley), the loop is
     fitted again from that one — with the same number of starts, the rest random, so
     that nothing new compiles — and the better fit kept. ``own``: [(result, problem,
-    spec)] per loop, in the order of ``loops``; returns it, improved, and for each loop
-    the index of the loop whose fit its kept fit started from (None: its own)."""
+    spec)] per loop, in the order of ``loops``, of the candidate ``label``; returns it,
+    improved, and for each loop the index of the loop whose fit its kept fit started
+    from (None: its own)."""
     import numpy as np
 
     out, sources = list(own), [None] * len(own)
@@ -116,22 +117,24 @@ def _own_best(args, own, loops, method):
         rms, j = min(tries, default=(np.inf, None))
         if rms < result.rms_error * (1.0 - 1e-3):
             out[i] = _again(args, out[i], own[j][0].params, method,
-                            f"from loop {loops[j].index}'s fit", rms, loops[i].index)
+                            f"from loop {loops[j].index}'s fit", rms,
+                            f"{label}: loop {loops[i].index}")
             sources[i] = j if out[i] is not own[i] else None
     return out, sources
 
 
-def _again(args, fit, params, method, source: str, rms: float, index):
+def _again(args, fit, params, method, source: str, rms: float, what: str):
     """``fit`` = (result, problem, spec) of one loop alone, fitted again from ``params``
     (which predict the loop at ``rms``, better than the fit) — with the same number of
-    starts, the rest random, so that nothing new compiles; the better of the two."""
+    starts, the rest random, so that nothing new compiles; the better of the two.
+    ``what``: the candidate and the loop, for the note."""
     import jax
     import numpy as np
 
     from .fitting import refit_from
 
     result, problem, spec = fit
-    note("leave-one-out", f"{spec['variant']}: loop {index} alone again, {source} (it "
+    note("leave-one-out", f"{what} alone again, {source} (it "
          f"predicts the loop better: {rms:.4g} against {result.rms_error:.4g})")
     params = jax.tree.map(lambda x: x[0] if np.ndim(x) else x, params)  # (shared values)
     again = refit_from(args, problem, params, method, quiet=True)
@@ -151,7 +154,7 @@ def _continued(args, fit, method, what: str):
     result, problem, spec = fit
     if result.result != "max_steps_reached":
         return fit
-    note("leave-one-out", f"{spec['variant']}: {what} stopped at its step limit: once more "
+    note("leave-one-out", f"{what} stopped at its step limit: once more "
          "from there")
     params = jax.tree.map(lambda x: x[0] if np.ndim(x) else x, result.params)
     again = refit_from(args, problem, params, method, quiet=True)
@@ -262,14 +265,14 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                       "vary": None, "per_loop": []}
             note("leave-one-out", f"{form}: loop {lp.index} alone …")
             own.append(_continued(args, _fit(args, single, given, [lp], method), method,
-                                  f"loop {lp.index} alone"))
+                                  f"{form}: loop {lp.index} alone"))
             seen.append({len(own) - 1})
         # (each loop's fit from its own data alone: what a fold starts from, and the
         # baseline predicts by, where a re-fit from a neighbour's fit saw the held-out
         # loop — `_unseen`)
         alone = alone or [r for r, _, _ in own]
         if not partial and not stop_requested():
-            own, sources = _own_best(args, own, fit_loops, method)
+            own, sources = _own_best(args, own, fit_loops, method, form)
             seen = [s | seen[j] if j is not None else s for s, j in zip(seen, sources,
                                                                        strict=True)]
         rows = []
@@ -289,7 +292,8 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             note("leave-one-out", f"{form}: fitting without loop {held.index} …")
             result, problem, fitted = _fit(args, spec_f, given, rest, method, seeds)
             result, problem, fitted = _continued(args, (result, problem, fitted), method,
-                                                 f"the fold without loop {held.index}")
+                                                 f"{form}: the fold without loop "
+                                                 f"{held.index}")
             if result.result == "interrupted":
                 partial = True
                 break
@@ -309,7 +313,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
                 # (the fold, which never saw the loop, predicts it better than its own fit:
                 # the own fit stopped in a higher valley)
                 again = _again(args, own[i], result.params, method, "from the fold's fit",
-                               row["rms"], held.index)
+                               row["rms"], f"{form}: loop {held.index}")
                 if again is not own[i]:  # (the fold saw every loop but this one)
                     own[i], seen[i] = again, set(range(len(loops)))
                     mine = own_rms(own[i], held)

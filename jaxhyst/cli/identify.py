@@ -335,8 +335,9 @@ def run(args) -> int:
     status = _exit_status(result)
     if status == 0 and held is not None and held["stopped_short"]:
         warn(args, "a fit of the leave-one-out stopped short: " + "; ".join(held[
-            "stopped_short"]) + " (its held-out error is not final; --max-steps N allows "
-             f"a fit more steps than {args.max_steps or 200})")
+            "stopped_short"]) + " (a fold's held-out error, or the own fit a ratio divides "
+             f"by, is not final; --max-steps N allows a fit more steps than "
+             f"{args.max_steps or 200})")
         return 3
     return status
 
