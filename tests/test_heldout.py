@@ -350,7 +350,7 @@ def test_a_loops_own_fit_is_never_worse_than_another_loops_fit_inside_its_box(tm
             "vary": None, "per_loop": []}
     loops = read_loops(spec["data"], spec["columns"])
     own = [heldout._fit(args, {**spec, "loop": lp.index}, None, [lp], "lm") for lp in loops]
-    better, _ = heldout._own_best(args, own, loops, "lm")
+    better, _ = heldout._own_best(args, own, loops, "lm", "play")
     improved = 0
     for i, (result, problem, _) in enumerate(own):
         for j, (result_j, problem_j, spec_j) in enumerate(own):
