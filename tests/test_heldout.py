@@ -611,3 +611,22 @@ def test_an_own_fit_cut_at_its_step_limit_is_continued_once(monkeypatch):
     worse = SimpleNamespace(result="max_steps_reached", cost=0.5, params={"k": 3.0})
     assert heldout._continued(SimpleNamespace(), (worse, "p", {"variant": "x"}), "lm",
                               "x")[0] is worse  # (the better of the two)
+
+
+def test_an_own_fit_cut_short_fails_the_comparison_only_where_the_choice_rests_on_it():
+    """A loop's own fit that stopped short sets its candidate's ratios and, for the
+    candidate whose single fits the baseline uses, the baseline's predictions: it makes
+    the exit status 3 for the kept candidate and that one (a law's candidate by its
+    form's single fits), and is only listed for the others (whose folds' score decides)."""
+    from jaxhyst.cli.heldout import counted_short
+    from jaxhyst.cli.nearest import NEAREST
+
+    classic, relax, play = ("classic, loop 3 alone: max_steps_reached",
+                            "play+relax, loop 0 alone: max_steps_reached",
+                            "play, loop 1 alone: max_steps_reached")
+    alone = {("classic", ()): [classic], ("play", ("relax",)): [relax], ("play", ()): [play]}
+    assert counted_short(alone, "play+relax", "play+relax") == ([relax], [classic, play])
+    counted, other = counted_short(alone, "play@spread:log_amplitude", "classic")
+    assert sorted(counted) == sorted([classic, play]) and other == [relax]
+    assert counted_short(alone, NEAREST, "classic") == ([classic], [relax, play])
+    assert counted_short({}, "classic", None) == ([], [])

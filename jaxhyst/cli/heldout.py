@@ -224,7 +224,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
     from .fitting import thinned
 
     conditions = _conditions(spec, loops)
-    table, partial, short, curves, singles, folds = {}, False, [], {}, {}, {}
+    table, partial, short, curves, singles, folds, alone_short = {}, False, [], {}, {}, {}, {}
     near_curves, owns = {}, {}
     longest = max(lp.n_samples for lp in loops)
     every = -(-longest // FOLD_SAMPLES)
@@ -333,8 +333,9 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
             note("leave-one-out", f"{form}: loop {held.index} predicted, rms "
                  f"{row['rms']:.4g} ({row['outcome']})")
             rows.append(row)
-        short += [f"{form}, loop {lp.index} alone: {r.result}" for (r, _, _), lp in
-                  zip(own[reused:], loops[reused:], strict=False) if not r.success]
+        alone_short.setdefault(same, []).extend(
+            f"{form}, loop {lp.index} alone: {r.result}" for (r, _, _), lp in
+            zip(own[reused:], loops[reused:], strict=False) if not r.success)
         done = len(rows) == len(loops)
         score = math.exp(sum(math.log(r["rms"] / r["data_scale"]) for r in rows) /
                          len(rows)) if done else None
@@ -349,12 +350,23 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
         if partial:
             break
     kept, source = choose(table, conditions, comparison=len(forms) > 1)
-    out = {"forms": table, "kept": kept, "partial": partial, "stopped_short": short,
-           "fitted_every": every, "_curves": curves.get(kept, []),
-           "_folds": folds.get(kept, [])}
+    counted, elsewhere = counted_short(alone_short, kept, source)
+    out = {"forms": table, "kept": kept, "partial": partial,
+           "stopped_short": short + counted, "stopped_short_elsewhere": elsewhere,
+           "fitted_every": every, "_curves": curves.get(kept, []), "_folds": folds.get(kept, [])}
     if kept == NEAREST:  # (its curves and fits: the source form's single fits)
         out["_curves"], out["_own"] = near_curves[source], owns[source]
     return out
+
+
+def counted_short(alone_short: dict, kept, source) -> tuple[list, list]:
+    """(the own fits cut short that make the exit status 3, the others) of ``alone_short``
+    ({(form, losses): [text]}): an own fit sets only its candidate's ratios (a fold, its
+    score) and the baseline's predictions: those of ``kept`` and ``source`` count."""
+    used = {(split_candidate(f)[0], tuple(split_candidate(f)[1])) for f in (kept, source)
+            if f not in (None, NEAREST)}
+    return ([s for key in used for s in alone_short.get(key, [])],
+            [s for key, v in alone_short.items() if key not in used for s in v])
 
 
 def held_out_text(held: dict) -> str:
@@ -401,6 +413,8 @@ def held_out_text(held: dict) -> str:
                                            else ""))
     for s in held["stopped_short"]:
         lines.append(f"    STOPPED SHORT: {s}")
+    for s in held.get("stopped_short_elsewhere", ()):
+        lines.append(f"    stopped short (a candidate not kept: its ratios only): {s}")
     if held["partial"]:
         lines.append("    PARTIAL: interrupted; the folds above are the ones that finished")
     return "\n".join(lines)
