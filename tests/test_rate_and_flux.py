@@ -6,6 +6,8 @@ then inverse returns the drive, and the inverse's loss is the forward's ∮ H dB
 
 from __future__ import annotations
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -472,3 +474,51 @@ def test_records_of_unequal_length_are_padded_and_fitted_as_each_alone():
     shifted = jh.FluxDrive(phase / 300.0, 0.2 * np.cos(phase))  # (no run-in from B = 0)
     with pytest.raises(ValueError, match="record 0: its drive must start at B = 0"):
         jh.FluxProblem([np.ones(41), H[1]], [shifted, drives[1]], space)
+
+
+def test_a_shared_joint_fit_is_saved_as_one_set_and_a_rate_model_predicts_another_frequency(
+        tmp_path, capsys):
+    """A joint fit that shared every parameter saves one material's set (``predict`` and
+    ``simulate --model`` take it; it used to be refused as "one set per loop"), and
+    ``predict --frequency`` runs each loop's waveform at that frequency with a
+    rate-dependent model — its times scaled, not only its label changed — from the
+    result and the saved model alike; without a frequency column, one line."""
+    from jaxhyst.cli import main
+
+    losses = jh.Losses(relax=2e-4)
+    lines = ["loop,t,H,B,frequency"]
+    for i, f in enumerate((50.0, 100.0)):
+        d = jh.sinusoidal_field(f, 120.0, 0.0, samples_per_period=160)
+        sim = jh.simulate(SOFT, NO_ACTUATOR, d, jh.ClassicJA(), 4, losses)
+        t, H, B = (np.asarray(d.observed(x)) for x in (d.t, d.H, _B(sim)))
+        lines += [f"{i},{float(a - t[0])!r},{float(h)!r},{float(b)!r},{f!r}"
+                  for a, h, b in zip(t, H, B, strict=True)]
+    data, out, model = tmp_path / "bh.csv", tmp_path / "r.json", tmp_path / "m.eqx"
+    data.write_text("\n".join(lines) + "\n")
+    assert main(["identify", str(data), "--joint", "--variant", "classic", "--substeps", "4",
+                 "--losses", "relax", "--method", "lm", "--starts", "1", "--max-steps", "3",
+                 "--intervals", "linear", "--progress", "0", "--out", str(out),
+                 "--save-model", str(model)]) in (0, 3, 4)
+    capsys.readouterr()
+    saved = jh.load_model(model)
+    assert np.ndim(saved.params.Ms) == 0 and np.ndim(saved.losses.relax) == 0
+    predicted = {}
+    for source in (out, model):
+        for f in (None, 50.0, 400.0):
+            csv = tmp_path / f"p{f}.csv"
+            assert main(["predict", str(source), str(data), "--loop", "0", "--out", str(csv),
+                         "--json", *(["--frequency", str(f)] if f else [])]) == 0
+            (row,) = json.loads(capsys.readouterr().out)["loops"]
+            assert ("not_compared" in row) == (f == 400.0), row
+            predicted[source, f] = np.genfromtxt(csv, delimiter=",", names=True)["predicted"]
+        np.testing.assert_allclose(predicted[source, 50.0], predicted[source, None], rtol=1e-9)
+        lag = np.max(np.abs(predicted[source, 400.0] - predicted[source, None]))
+        assert lag > 0.05 * np.max(np.abs(predicted[source, None])), lag
+    np.testing.assert_allclose(predicted[model, 400.0], predicted[out, 400.0], rtol=1e-7,
+                               atol=1e-9)
+    bare = tmp_path / "bare.csv"  # (times, no frequency column)
+    bare.write_text("\n".join(",".join(x.split(",")[:4]) for x in lines) + "\n")
+    assert main(["predict", str(out), str(bare), "--loop", "0", "--frequency", "400"]) == 2
+    assert "give the file a 'frequency' column" in capsys.readouterr().err
+    assert main(["simulate", "--model", str(model), "--field-amplitude", "100",
+                 "--frequency", "200", "--json"]) == 0

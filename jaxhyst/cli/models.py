@@ -76,6 +76,24 @@ def fitted_data(path: str, meta: dict):
     return spec, data_changed(spec["data"], meta.get("data_sha256"), path)
 
 
+def one_set(model):
+    """``model`` with one parameter set where it holds a joint fit's per-loop sets (leaves
+    (L,)) that are all equal — every parameter was shared: one material — else as it is."""
+    import jax
+    import numpy as np
+
+    import jaxhyst as jh
+
+    members = (model.params, model.variant, model.losses)
+    if model.law is not None or np.ndim(model.params.Ms) != 1 or any(
+            np.ndim(x) and np.ptp(np.asarray(x)) > 0 for x in jax.tree.leaves(members)):
+        return model
+    pick = lambda x: x[0] if np.ndim(x) else x  # noqa: E731
+    return jh.Model(jax.tree.map(pick, model.params), model.actuator,
+                    jax.tree.map(pick, model.variant), model.substeps,
+                    None if model.losses is None else jax.tree.map(pick, model.losses))
+
+
 def model_at(args, model, path: str, *, frequency=None, temperature=None, amplitude=None,
              amplitude_option: str = "--field-amplitude", amplitude_unit: str = "A/m"):
     """``model`` ready for one drive: a condition law evaluated at the conditions the
@@ -91,6 +109,7 @@ def model_at(args, model, path: str, *, frequency=None, temperature=None, amplit
     import jaxhyst as jh
 
     given = {"frequency": frequency, "temperature": temperature, "amplitude": amplitude}
+    model = one_set(model)  # (a joint fit that shared every parameter, saved as sets)
     if model.law is None:
         if np.ndim(model.params.Ms) != 0:
             raise CLIError(f"--model {path} holds {np.shape(model.params.Ms)[0]} parameter "

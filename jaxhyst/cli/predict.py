@@ -36,7 +36,8 @@ def add_parser(sub) -> None:
     parser.add_argument("--loop", type=COUNT, action="append",
                         help="predict only this loop of the file (repeatable)")
     parser.add_argument("--frequency", type=POSITIVE, help="the loops' frequency, Hz "
-                        "(replaces the file's frequency column)")
+                        "(replaces the file's frequency column; a rate-dependent model runs "
+                        "each loop's waveform at it, its times scaled)")
     parser.add_argument("--temperature", type=FINITE, help="the loops' temperature, °C "
                         "(replaces the file's temperature column)")
     parser.add_argument("--amplitude", type=POSITIVE, help="the loops' peak field, A/m: "
@@ -63,6 +64,7 @@ def run(args) -> int:
     from jaxhyst.io import write_columns_csv
 
     from .predictions import (
+        at_frequency,
         error_summary,
         expect,
         expected_error,
@@ -101,9 +103,11 @@ def run(args) -> int:
     nearest = nearest_of(spec)  # (a fit that kept the nearest-condition baseline)
     varies = fitted.form.features if isinstance(fitted, jh.ConditionProblem) else \
         nearest.features if nearest is not None else ()
+    rate = bool(spec.get("losses"))  # (a rate-dependent model: the frequency runs the loop)
     for name, feature in (("frequency", "log_f"), ("temperature", "T"),
                           ("amplitude", "log_amplitude")):
-        if vars(args)[name] is not None and feature not in varies:
+        if vars(args)[name] is not None and feature not in varies and not (
+                rate and name == "frequency"):
             warn(args, f"--{name}: the fitted model does not vary with the {name} "
                  "(identify --vary); only the loop's field changes." if name == "amplitude"
                  else f"--{name}: the fitted model does not vary with the {name} "
@@ -112,6 +116,8 @@ def run(args) -> int:
     elsewhere = _elsewhere(loops, overrides, args.amplitude)
     if args.amplitude is not None:
         loops = [scaled_loop(lp, args.amplitude, actuator, source) for lp in loops]
+    if rate and args.frequency is not None:
+        loops = [at_frequency(lp, args.frequency, source, by_flux) for lp in loops]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConditionWarning)
         predictions = predict_loops(spec, fitted, params, loops, overrides, source)

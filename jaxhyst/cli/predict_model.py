@@ -32,6 +32,7 @@ def run_model(args) -> int:
 
     from .models import model_at, read_model
     from .predictions import (
+        at_frequency,
         error_summary,
         expect,
         flux_curves,
@@ -56,11 +57,16 @@ def run_model(args) -> int:
         refuse_amplitude_by_flux(args.amplitude, args.result)
     fitted_column = (problem or {}).get("output") or signal_column(meta.get("output"))
     law = saved.law.features if saved.law is not None else ()
+    rate = saved.losses is not None  # (rate dependent: the frequency runs the loop)
     for name, feature in (("frequency", "log_f"), ("temperature", "T")):
-        if vars(args)[name] is not None and feature not in law:
+        if vars(args)[name] is not None and feature not in law and not (
+                rate and name == "frequency"):
             raise CLIError(f"--{name}: the model in {args.result} does not vary with the "
                            f"{name}; it would have no effect.")
     loops = select_loops(read_data(args.data, None, drive=not by_flux), args.loop, args.data)
+    measured = {lp.index: lp.conditions.get("frequency") for lp in loops}
+    if rate and args.frequency is not None:  # (the same waveforms, faster or slower)
+        loops = [at_frequency(lp, args.frequency, args.data, by_flux) for lp in loops]
     spec = {"data": args.data, "run_in_periods": 1}
     fitted, expected = _fitted_conditions(args.result, meta, saved.actuator)
     if by_flux:  # (its amplitude the peak flux density; a model saved before that was
@@ -106,6 +112,9 @@ def run_model(args) -> int:
             row.update(error_summary(pred, data, "A/m" if by_flux else kind.unit))
         elif args.amplitude is not None:
             row["not_compared"] = f"its field scaled to the peak {args.amplitude:g} A/m"
+        elif rate and args.frequency is not None and data is None:
+            row["not_compared"] = (f"measured at frequency {measured[lp.index]:g} Hz, "
+                                   f"predicted at {args.frequency:g} Hz")
         if fitted is not None:
             row["extrapolation"], far = outside(spec, lp, saved.actuator, fitted, overrides)
             expect(row, far, expected)

@@ -189,6 +189,8 @@ def model_to_save(spec, problem, result):
     from jaxhyst.identify.joint import NO_ACTUATOR
     from jaxhyst.names import MAGNETIC_OUTPUT_NAMES
 
+    from .models import one_set
+
     model = problem.model(result.params)
     records = records_of(problem)
     if all(o in MAGNETIC_OUTPUT_NAMES
@@ -196,9 +198,9 @@ def model_to_save(spec, problem, result):
         model = eqx.tree_at(lambda m: m.actuator, model, NO_ACTUATOR)  # (a material)
     nearest = nearest_of(spec)
     if nearest is not None:
-        model = jh.Model(model.params, model.actuator, model.variant, model.substeps,
-                         model.losses, nearest)
-    return model
+        return jh.Model(model.params, model.actuator, model.variant, model.substeps,
+                        model.losses, nearest)
+    return one_set(model)  # (every parameter shared: the one material's set)
 
 
 def nearest_loop(spec, nearest, conditions) -> int:
@@ -368,6 +370,27 @@ def scaled_loop(lp, amplitude, actuator, source):
     if peak <= 0:
         raise CLIError(f"--amplitude: loop {lp.index} of {source} has no field to scale.")
     return dataclasses.replace(lp, H=H * (amplitude / peak), I=None, signals={})
+
+
+def at_frequency(lp, frequency: float, source: str, by_flux: bool = False):
+    """The loop ``lp`` run at ``frequency`` (Hz) by a rate-dependent model: the same
+    waveform, its times scaled by the loop's own frequency over ``frequency``; nothing
+    measured to compare (driven by B, its B(t) kept as the drive)."""
+    import dataclasses
+
+    import numpy as np
+
+    own = lp.conditions.get("frequency")
+    if own is not None and abs(own - frequency) <= 1e-9 * frequency:
+        return lp
+    if lp.t is None or own is None:
+        raise CLIError(f"--frequency: the rate-dependent model runs loop {lp.index} of "
+                       f"{source} at another frequency by scaling its times from its own; "
+                       "give the file a 'frequency' column (Hz) and times (t, s).")
+    return dataclasses.replace(
+        lp, t=np.asarray(lp.t, dtype=np.float64) * (own / frequency),
+        H=None if by_flux else lp.H, signals={"B": lp.signals["B"]} if by_flux else {},
+        conditions={**lp.conditions, "frequency": float(frequency)})
 
 
 def held_out_figure(curves, kept: str, spec, actuator, output: str, path: str) -> None:
