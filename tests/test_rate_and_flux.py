@@ -476,6 +476,27 @@ def test_records_of_unequal_length_are_padded_and_fitted_as_each_alone():
         jh.FluxProblem([np.ones(41), H[1]], [shifted, drives[1]], space)
 
 
+def test_a_model_of_equal_sets_per_loop_is_one_material():
+    """`jaxhyst.cli.models.one_set`: a joint fit's per-loop sets that are all equal (every
+    parameter shared) become one set — parameters, form and losses — and sets that
+    differ (``--per-loop``) or a condition law stay as they are."""
+    from jaxhyst.cli.models import one_set
+
+    def stacked(*sets):
+        return jax.tree.map(lambda *x: jnp.stack(x), *sets)
+
+    form = jh.PlayJA(spread=0.8, cells=8)
+    same = jh.Model(stacked(SOFT, SOFT), NO_ACTUATOR, stacked(form, form), 1,
+                    stacked(LOSSES, LOSSES))
+    one = one_set(same)
+    assert np.ndim(one.params.Ms) == 0 and np.ndim(one.variant.spread) == 0
+    assert float(one.losses.excess) == float(LOSSES.excess) and one.variant.cells == 8
+    differ = jh.Model(stacked(SOFT, SOFT.replace(k=25.0)), NO_ACTUATOR, jh.ClassicJA())
+    assert one_set(differ) is differ
+    assert one_set(one) is one
+
+
+@pytest.mark.extended  # (a rate-dependent joint fit and its predictions by the command line)
 def test_a_shared_joint_fit_is_saved_as_one_set_and_a_rate_model_predicts_another_frequency(
         tmp_path, capsys):
     """A joint fit that shared every parameter saves one material's set (``predict`` and
