@@ -36,6 +36,13 @@ def split_candidate(candidate: str) -> tuple[str, list[str], str]:
     return form, losses, law
 
 
+def singles_key(form: str) -> tuple:
+    """What a candidate's loops alone are fitted with: its form and its loss coefficients,
+    not its law (candidates differing only by a law share those fits)."""
+    name, losses, _ = split_candidate(form)
+    return name, tuple(losses)
+
+
 def _spans_amplitudes(loops, by_B: bool = False, factor: float = 1.1) -> bool:
     """Three loops or more whose amplitudes lie more than ``factor`` apart without any
     one of them: every fold's training loops span amplitudes (a law in the amplitude

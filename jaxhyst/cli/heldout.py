@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 
-from .candidates import candidate_spec, split_candidate
+from .candidates import candidate_spec, singles_key
 from .nearest import NEAREST, choose
 from .spec import note
 
@@ -250,8 +250,7 @@ def leave_one_out(args, spec, given, loops, method, forms) -> dict:
         shared = not (spec_f.get("vary") or spec_f.get("per_loop"))
         # (a candidate that differs from an earlier one only by its law has its loops
         # alone fitted already: the same single-loop problems)
-        name, losses, _ = split_candidate(form)
-        same = (name, tuple(losses))  # (the form and its loss coefficients, not its law)
+        same = singles_key(form)
         alone, own, seen = singles.get(same, ([], [], []))
         # (seen[j]: the loops whose data shaped own[j], its starts included — a loop's
         # fit predicts a held-out loop for the baseline only where it never saw it)
@@ -363,8 +362,7 @@ def counted_short(alone_short: dict, kept, source) -> tuple[list, list]:
     """(the own fits cut short that make the exit status 3, the others) of ``alone_short``
     ({(form, losses): [text]}): an own fit sets only its candidate's ratios (a fold, its
     score) and the baseline's predictions: those of ``kept`` and ``source`` count."""
-    used = {(split_candidate(f)[0], tuple(split_candidate(f)[1])) for f in (kept, source)
-            if f not in (None, NEAREST)}
+    used = {singles_key(f) for f in (kept, source) if f not in (None, NEAREST)}
     return ([s for key in used for s in alone_short.get(key, [])],
             [s for key, v in alone_short.items() if key not in used for s in v])
 

@@ -76,22 +76,29 @@ def fitted_data(path: str, meta: dict):
     return spec, data_changed(spec["data"], meta.get("data_sha256"), path)
 
 
+def equal_sets(tree):
+    """``tree`` (a joint fit's parameters: leaves (L,) per loop, or () where not per loop)
+    as one set where every loop's set is the same; None where they differ."""
+    import jax
+    import numpy as np
+
+    if any(np.ndim(x) and np.ptp(np.asarray(x)) > 0 for x in jax.tree.leaves(tree)):
+        return None
+    return jax.tree.map(lambda x: x[0] if np.ndim(x) else x, tree)
+
+
 def one_set(model):
     """``model`` with one parameter set where it holds a joint fit's per-loop sets (leaves
     (L,)) that are all equal — every parameter was shared: one material — else as it is."""
-    import jax
     import numpy as np
 
     import jaxhyst as jh
 
-    members = (model.params, model.variant, model.losses)
-    if model.law is not None or np.ndim(model.params.Ms) != 1 or any(
-            np.ndim(x) and np.ptp(np.asarray(x)) > 0 for x in jax.tree.leaves(members)):
+    if model.law is not None or np.ndim(model.params.Ms) != 1:
         return model
-    pick = lambda x: x[0] if np.ndim(x) else x  # noqa: E731
-    return jh.Model(jax.tree.map(pick, model.params), model.actuator,
-                    jax.tree.map(pick, model.variant), model.substeps,
-                    None if model.losses is None else jax.tree.map(pick, model.losses))
+    one = equal_sets((model.params, model.variant, model.losses))
+    return model if one is None else jh.Model(one[0], model.actuator, one[1],
+                                              model.substeps, one[2])
 
 
 def model_at(args, model, path: str, *, frequency=None, temperature=None, amplitude=None,

@@ -61,6 +61,8 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
     from jaxhyst.identify.outputs import output_kind
     from jaxhyst.model.paths import split_parameters
 
+    from .models import equal_sets
+
     records = records_of(fitted)
     if isinstance(records, jh.FluxProblem):  # (each loop's B(t) drives it; H predicted)
         drives, actuator = [flux_drive(spec, lp, source) for lp in loops], None
@@ -95,11 +97,10 @@ def predict_loops(spec, fitted, params, loops, conditions=None, source=None) -> 
         elif nearest is not None:  # (the nearest fitted loop's set)
             tree = jax.tree.map(lambda x, i=int(by[k]): np.asarray(x)[i], params)
         elif np.ndim(split_parameters(params)[0].Ms) == 1:
-            per_loop = [np.asarray(x) for x in jax.tree.leaves(params)]
-            if any(np.ptp(x) > 0 for x in per_loop):
+            tree = equal_sets(params)
+            if tree is None:
                 raise CLIError("the fit has parameters per loop (--per-loop): it cannot "
                                "predict another loop; fit with shared parameters or --vary.")
-            tree = jax.tree.map(lambda x: np.asarray(x)[0], params)
         else:
             tree = params
         p, losses, form = split_parameters(tree)
